@@ -1,0 +1,45 @@
+"""The library's exception family.
+
+Every error the library raises on purpose derives from :class:`ShadowMapError`. The HTTP layer maps
+these classes to status codes; the library itself knows nothing of HTTP.
+"""
+
+from __future__ import annotations
+
+
+class ShadowMapError(Exception):
+    """Base class of every error raised on purpose by :mod:`renderer`."""
+
+
+class SceneError(ShadowMapError):
+    """The scene cannot be used: corrupt or truncated glTF, unsafe URI, no geometry, ..."""
+
+
+class RequestError(ShadowMapError, ValueError):
+    """The request is well-formed but impossible (e.g. a spot light with no direction)."""
+
+
+class LimitError(ShadowMapError):
+    """A configured limit (triangles, image size, map size, lights, time) was exceeded.
+
+    Attributes
+    ----------
+    limit : str
+        Name of the setting that was exceeded, e.g. ``"max_triangles"``.
+    """
+
+    def __init__(self, limit: str, message: str) -> None:
+        super().__init__(message)
+        self.limit = limit
+
+
+class RenderError(ShadowMapError):
+    """OpenGL failed: no context, a GL error, an incomplete framebuffer, ..."""
+
+
+class ShaderError(RenderError):
+    """A shader failed to compile or link; the message names the file(s)."""
+
+
+class ReferenceUnavailable(ShadowMapError):
+    """The ray-traced reference needs ``embreex`` (``pip install shadowmap-service[reference]``)."""

@@ -1,0 +1,597 @@
+"""Loading glTF scenes into the renderer's own scene description.
+
+trimesh parses geometry, materials and the node graph; this module reads the few things trimesh does
+not keep (``KHR_lights_punctual`` lights, every camera with its full node transform, and the
+``castShadow`` / ``receiveShadow`` extras) straight from the glTF JSON, and flattens everything into
+plain numpy arrays that the GL passes, the planner and the ray-traced reference all share.
+
+The loader never opens a path named inside a file and never fetches a URL: external buffers and
+images are looked up in a mapping the caller provides, and anything that is not a plain relative
+name (``../``, absolute paths, ``file:``, ``http:``) is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import posixpath
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import unquote
+
+import numpy as np
+
+from .errors import LimitError, SceneError
+
+GLB_MAGIC = b"glTF"
+
+
+@dataclass(frozen=True, eq=False)
+class Material:
+    """The parts of a glTF metallic-roughness material this renderer honours.
+
+    Attributes
+    ----------
+    base_color : ndarray, shape (4,), float32
+        ``baseColorFactor`` (linear RGBA).
+    texture : ndarray or None, shape (H, W, 4), uint8
+        ``baseColorTexture`` (sRGB RGB, linear alpha), rows top to bottom as in the image file.
+    alpha_mode : {"OPAQUE", "MASK", "BLEND"}
+    alpha_cutoff : float
+        Used when ``alpha_mode == "MASK"``.
+    double_sided : bool
+    """
+
+    base_color: np.ndarray
+    texture: np.ndarray | None = None
+    alpha_mode: str = "OPAQUE"
+    alpha_cutoff: float = 0.5
+    double_sided: bool = False
+
+
+@dataclass(eq=False)
+class Primitive:
+    """One triangle mesh in its local frame (a glTF mesh primitive).
+
+    Attributes
+    ----------
+    positions : ndarray, shape (N, 3), float32
+    normals : ndarray, shape (N, 3), float32
+        Unit vertex normals (computed when the file has none).
+    indices : ndarray, shape (F, 3), uint32
+    material : Material
+    uv : ndarray or None, shape (N, 2), float32
+        ``TEXCOORD_0``, present only when the material has a texture.
+    colors : ndarray or None, shape (N, 4), float32
+        ``COLOR_0`` (linear RGBA), present only when the file has vertex colours.
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    indices: np.ndarray
+    material: Material
+    uv: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    name: str = ""
+
+    @property
+    def local_bounds(self) -> np.ndarray:
+        """ndarray, shape (2, 3): axis-aligned min and max corner in the local frame."""
+        return np.stack([self.positions.min(axis=0), self.positions.max(axis=0)])
+
+
+@dataclass(eq=False)
+class Instance:
+    """A primitive placed in the world by a node.
+
+    Attributes
+    ----------
+    primitive : int
+        Index into :attr:`Scene.primitives`.
+    matrix : ndarray, shape (4, 4), float64
+        Local-to-world transform.
+    cast_shadow, receive_shadow : bool
+        From ``extras.castShadow`` / ``extras.receiveShadow`` on the node or its mesh (default true).
+    bounds : ndarray, shape (2, 3), float64
+        World-space axis-aligned bounds.
+    """
+
+    primitive: int
+    matrix: np.ndarray
+    cast_shadow: bool = True
+    receive_shadow: bool = True
+    name: str = ""
+    bounds: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))
+
+
+@dataclass(frozen=True)
+class SceneCamera:
+    """A perspective camera found in the file: ``pose`` is camera-to-world (4, 4)."""
+
+    pose: np.ndarray
+    yfov: float
+    znear: float | None
+    zfar: float | None
+    aspect: float | None = None
+
+
+@dataclass(frozen=True)
+class SceneLight:
+    """A ``KHR_lights_punctual`` light: ``pose`` is light-to-world (4, 4), looking down −Z."""
+
+    type: str
+    pose: np.ndarray
+    color: tuple[float, float, float]
+    intensity: float
+    range: float | None
+    inner_cone: float
+    outer_cone: float
+
+
+@dataclass(eq=False)
+class Scene:
+    """A loaded scene: flat lists of primitives and their world instances.
+
+    Attributes
+    ----------
+    primitives : list of Primitive
+    instances : list of Instance
+    cameras : list of SceneCamera
+    lights : list of SceneLight
+    key : str
+        SHA-256 of the file and its resources, for caching.
+    """
+
+    primitives: list[Primitive]
+    instances: list[Instance]
+    cameras: list[SceneCamera] = field(default_factory=list)
+    lights: list[SceneLight] = field(default_factory=list)
+    key: str = ""
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """ndarray, shape (2, 3): world-space bounds of every instance."""
+        b = np.stack([inst.bounds for inst in self.instances])
+        return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn per pass, counting every instance."""
+        return int(sum(len(self.primitives[i.primitive].indices) for i in self.instances))
+
+    def world_triangles(self, instance: Instance) -> np.ndarray:
+        """Triangles of one instance in world space.
+
+        Returns
+        -------
+        ndarray, shape (F, 3, 3), float64
+        """
+        prim = self.primitives[instance.primitive]
+        v = prim.positions.astype(np.float64) @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
+        return v[prim.indices]
+
+
+# --------------------------------------------------------------------------------------------
+# Resolving external files safely
+# --------------------------------------------------------------------------------------------
+
+
+def _safe_name(uri: str) -> str:
+    """Normalise a relative URI; raise SceneError for anything that could leave the upload."""
+    name = unquote(uri).replace("\\", "/")
+    if ":" in name.split("/", 1)[0] or name.startswith("/") or name.startswith("//"):
+        raise SceneError(f"refusing URI {uri!r}: only relative names inside the upload are allowed")
+    norm = posixpath.normpath(name)
+    if norm.startswith("..") or norm.startswith("/") or norm in ("", "."):
+        raise SceneError(f"refusing URI {uri!r}: it points outside the upload")
+    return norm
+
+
+class MappingResolver:
+    """trimesh resolver backed by a mapping of relative name -> bytes; refuses unsafe names."""
+
+    def __init__(self, resources: Mapping[str, bytes] | None) -> None:
+        self._files = {_safe_name(k): v for k, v in (resources or {}).items()}
+
+    def get(self, name: str) -> bytes:
+        key = _safe_name(name)
+        if key not in self._files:
+            raise SceneError(f"the file refers to {name!r}, which was not provided")
+        return self._files[key]
+
+    __getitem__ = get
+
+    def namespaced(self, namespace: str) -> MappingResolver:
+        sub = MappingResolver(None)
+        prefix = _safe_name(namespace) + "/"
+        sub._files = {k[len(prefix):]: v for k, v in self._files.items() if k.startswith(prefix)}
+        return sub
+
+    def write(self, name: str, data: bytes) -> None:  # trimesh's interface; loading never writes
+        raise SceneError("the resolver is read-only")
+
+
+def directory_resources(folder: str | Path, max_bytes: int = 512 * 2**20) -> dict[str, bytes]:
+    """Every regular file below ``folder`` as a mapping of relative name -> bytes (for the CLI).
+
+    Only files inside ``folder`` are read, so a URI in the scene can never reach outside it.
+    """
+    root = Path(folder).resolve()
+    out: dict[str, bytes] = {}
+    total = 0
+    for p in sorted(root.rglob("*")):
+        if p.is_file() and not p.is_symlink() and p.suffix.lower() not in (".gltf",):
+            total += p.stat().st_size
+            if total > max_bytes:
+                raise LimitError("max_upload_bytes", f"resources under {root} exceed {max_bytes} bytes")
+            out[p.relative_to(root).as_posix()] = p.read_bytes()
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# glTF JSON: what trimesh does not keep
+# --------------------------------------------------------------------------------------------
+
+
+def _read_header(data: bytes, file_type: str) -> dict:
+    """The glTF JSON of a .glb or .gltf file, with structural checks."""
+    if file_type == "glb":
+        if len(data) < 20 or data[:4] != GLB_MAGIC:
+            raise SceneError("not a binary glTF: the file does not start with the magic 'glTF'")
+        version, length = struct.unpack_from("<II", data, 4)
+        if version != 2:
+            raise SceneError(f"binary glTF version {version} is not supported (only 2)")
+        if length > len(data):
+            raise SceneError(f"truncated binary glTF: header says {length} bytes, got {len(data)}")
+        chunk_len, chunk_type = struct.unpack_from("<II", data, 12)
+        if chunk_type != 0x4E4F534A or 20 + chunk_len > len(data):
+            raise SceneError("corrupt binary glTF: the first chunk is not a complete JSON chunk")
+        raw = data[20 : 20 + chunk_len]
+    else:
+        raw = data
+    try:
+        header = json.loads(raw.decode("utf-8-sig"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SceneError(f"the glTF JSON cannot be parsed: {exc}") from None
+    if not isinstance(header, dict) or "asset" not in header:
+        raise SceneError("not a glTF 2.0 file: the JSON has no 'asset'")
+    version = str(header["asset"].get("version", ""))
+    if not version.startswith("2"):
+        raise SceneError(f"glTF version {version!r} is not supported (only 2.x)")
+    return header
+
+
+def _node_matrix(node: dict) -> np.ndarray:
+    if "matrix" in node:
+        return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T
+    m = np.eye(4)
+    if "scale" in node:
+        m = np.diag([*node["scale"], 1.0]) @ m
+    if "rotation" in node:
+        x, y, z, w = node["rotation"]
+        r = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        rm = np.eye(4)
+        rm[:3, :3] = r
+        m = rm @ m
+    if "translation" in node:
+        t = np.eye(4)
+        t[:3, 3] = node["translation"]
+        m = t @ m
+    return m
+
+
+def _world_matrices(header: dict) -> dict[int, np.ndarray]:
+    """World matrix of every node reachable from the default scene."""
+    nodes = header.get("nodes", [])
+    scenes = header.get("scenes", [])
+    roots = scenes[header.get("scene", 0)].get("nodes", []) if scenes else range(len(nodes))
+    out: dict[int, np.ndarray] = {}
+    stack = [(int(r), np.eye(4)) for r in roots]
+    while stack:
+        idx, parent = stack.pop()
+        if idx in out or not 0 <= idx < len(nodes):
+            continue
+        out[idx] = parent @ _node_matrix(nodes[idx])
+        stack.extend((int(c), out[idx]) for c in nodes[idx].get("children", []))
+    return out
+
+
+def _orthonormal_pose(m: np.ndarray) -> np.ndarray:
+    """Drop scale from a node matrix, keeping position and orientation."""
+    pose = np.eye(4)
+    pose[:3, 3] = m[:3, 3]
+    r = m[:3, :3]
+    u, _, vt = np.linalg.svd(r)
+    pose[:3, :3] = u @ vt
+    return pose
+
+
+def _cameras_and_lights(header: dict) -> tuple[list[SceneCamera], list[SceneLight]]:
+    world = _world_matrices(header)
+    nodes = header.get("nodes", [])
+    cams = header.get("cameras", [])
+    lights = header.get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", [])
+    cameras: list[SceneCamera] = []
+    out_lights: list[SceneLight] = []
+    for idx in sorted(world):
+        node = nodes[idx]
+        pose = _orthonormal_pose(world[idx])
+        if not np.all(np.isfinite(pose)):
+            continue
+        if "camera" in node and 0 <= node["camera"] < len(cams):
+            cam = cams[node["camera"]]
+            p = cam.get("perspective")
+            if cam.get("type") == "perspective" and p and p.get("yfov", 0) > 0:
+                cameras.append(
+                    SceneCamera(pose, float(p["yfov"]), p.get("znear"), p.get("zfar"),
+                                p.get("aspectRatio"))
+                )
+        li = node.get("extensions", {}).get("KHR_lights_punctual", {}).get("light")
+        if li is not None and 0 <= li < len(lights):
+            spec = lights[li]
+            spot = spec.get("spot", {})
+            out_lights.append(
+                SceneLight(
+                    type=spec.get("type", "directional"),
+                    pose=pose,
+                    color=tuple(spec.get("color", (1.0, 1.0, 1.0))),
+                    intensity=float(spec.get("intensity", 1.0)),
+                    range=spec.get("range"),
+                    inner_cone=float(spot.get("innerConeAngle", 0.0)),
+                    outer_cone=float(spot.get("outerConeAngle", math.pi / 4)),
+                )
+            )
+    return cameras, out_lights
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry and materials from trimesh
+# --------------------------------------------------------------------------------------------
+
+
+def _flag(meta: dict | None, key: str) -> bool | None:
+    if isinstance(meta, dict) and isinstance(meta.get(key), bool):
+        return meta[key]
+    return None
+
+
+def _material(visual) -> tuple[Material, np.ndarray | None, np.ndarray | None]:
+    """Material, per-vertex uv (when textured) and per-vertex colours (when present)."""
+    import trimesh
+
+    uv = colors = None
+    if isinstance(visual, trimesh.visual.ColorVisuals):
+        vc = visual.vertex_colors if visual.kind == "vertex" else None
+        if vc is not None:
+            colors = np.asarray(vc, dtype=np.float32) / 255.0
+        face_color = (
+            np.asarray(visual.main_color, np.float32) / 255.0
+            if visual.kind == "face"
+            else np.ones(4, np.float32)
+        )
+        return Material(base_color=face_color), None, colors
+    mat = getattr(visual, "material", None)
+    factor = np.ones(4, np.float32)
+    texture = None
+    alpha_mode, cutoff, double_sided = "OPAQUE", 0.5, False
+    if mat is not None:
+        bcf = getattr(mat, "baseColorFactor", None)
+        if bcf is not None:
+            factor = np.asarray(bcf, np.float32) / 255.0
+        img = getattr(mat, "baseColorTexture", None)
+        if img is None and hasattr(mat, "image"):  # SimpleMaterial
+            img = mat.image
+        if img is not None and getattr(visual, "uv", None) is not None:
+            texture = np.asarray(img.convert("RGBA"), dtype=np.uint8)
+            uv = np.asarray(visual.uv, np.float32)
+        alpha_mode = (getattr(mat, "alphaMode", None) or "OPAQUE").upper()
+        cutoff = float(getattr(mat, "alphaCutoff", None) or 0.5)
+        double_sided = bool(getattr(mat, "doubleSided", False))
+    vc = getattr(visual, "vertex_attributes", {}).get("color") if hasattr(visual, "vertex_attributes") else None
+    if vc is not None:
+        colors = np.asarray(vc, np.float32)
+        if colors.max(initial=0) > 1.0:
+            colors = colors / 255.0
+    return Material(factor, texture, alpha_mode, cutoff, double_sided), uv, colors
+
+
+def _primitive_from_trimesh(mesh, name: str) -> Primitive:
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise SceneError(f"mesh {name!r} has no triangles")
+    if faces.min() < 0 or faces.max() >= len(verts):
+        raise SceneError(f"mesh {name!r} has indices outside its vertex array")
+    if not np.all(np.isfinite(verts)):
+        raise SceneError(f"mesh {name!r} has NaN or infinite vertex positions")
+    material, uv, colors = _material(mesh.visual)
+    if uv is not None and len(uv) != len(verts):
+        uv, material = None, Material(material.base_color, None, material.alpha_mode,
+                                      material.alpha_cutoff, material.double_sided)
+    if colors is not None and len(colors) != len(verts):
+        colors = None
+    if colors is not None and np.allclose(colors, 1.0):
+        colors = None  # all-white vertex colours change nothing: leave the path out
+    normals = _vertex_normals(verts, faces)
+    return Primitive(
+        positions=verts.astype(np.float32),
+        normals=normals,
+        indices=faces.astype(np.uint32),
+        material=material,
+        uv=uv,
+        colors=None if colors is None else colors.astype(np.float32),
+        name=name,
+    )
+
+
+def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals; zero-area triangles contribute nothing, lone vertices get +Y."""
+    tri = verts[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(verts)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], fn)
+    length = np.linalg.norm(vn, axis=1, keepdims=True)
+    bad = length[:, 0] <= 1e-300
+    vn[~bad] /= length[~bad]
+    vn[bad] = (0.0, 1.0, 0.0)
+    return vn.astype(np.float32)
+
+
+def _world_bounds(local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    corners = np.array(np.meshgrid(*local.T)).reshape(3, -1).T
+    w = corners @ matrix[:3, :3].T + matrix[:3, 3]
+    return np.stack([w.min(axis=0), w.max(axis=0)])
+
+
+def _detect_type(data: bytes, file_type: str | None) -> str:
+    if file_type:
+        ft = file_type.lower().lstrip(".")
+        if ft not in ("glb", "gltf"):
+            raise SceneError(f"unsupported scene type {file_type!r}: use .glb or .gltf")
+        return ft
+    return "glb" if data[:4] == GLB_MAGIC else "gltf"
+
+
+def load_scene(
+    source: str | Path | bytes,
+    *,
+    file_type: str | None = None,
+    resources: Mapping[str, bytes] | None = None,
+    max_triangles: int | None = None,
+) -> Scene:
+    """Load a glTF 2.0 scene.
+
+    Parameters
+    ----------
+    source : path or bytes
+        A ``.glb`` or ``.gltf`` file. Only this file is read from disk; see ``resources``.
+    file_type : {"glb", "gltf"}, optional
+        Detected from the magic bytes when omitted.
+    resources : mapping of str to bytes, optional
+        External buffers and images of a ``.gltf``, by the relative name used in the file.
+    max_triangles : int, optional
+        Raise :class:`LimitError` when the scene draws more triangles than this.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneError
+        Corrupt, truncated or unsupported file; unsafe or missing external URIs; no triangles.
+    """
+    import trimesh
+
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise SceneError(f"cannot read {path}: {exc.strerror}") from None
+        file_type = file_type or path.suffix
+    else:
+        data = bytes(source)
+    if not data:
+        raise SceneError("the scene file is empty")
+    ft = _detect_type(data, file_type)
+    header = _read_header(data, ft)
+    resolver = MappingResolver(resources)
+    digest = hashlib.sha256(data)
+    for name in sorted(resources or {}):
+        digest.update(name.encode() + b"\0" + resources[name])
+
+    try:
+        tm = trimesh.load(
+            io.BytesIO(data), file_type=ft, resolver=resolver, force="scene", process=False
+        )
+    except SceneError:
+        raise
+    except Exception as exc:  # trimesh raises many types on corrupt input
+        raise SceneError(f"the glTF file cannot be parsed: {type(exc).__name__}: {exc}") from None
+
+    primitives: list[Primitive] = []
+    index_of: dict[str, int] = {}
+    instances: list[Instance] = []
+    edge_meta = tm.graph.transforms.edge_data
+    parents = {e[1]: e for e in edge_meta}
+    for node in tm.graph.nodes_geometry:
+        matrix, geom_name = tm.graph[node]
+        mesh = tm.geometry.get(geom_name)
+        if mesh is None or not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+            continue
+        if geom_name not in index_of:
+            index_of[geom_name] = len(primitives)
+            primitives.append(_primitive_from_trimesh(mesh, geom_name))
+        matrix = np.asarray(matrix, dtype=np.float64)
+        if not np.all(np.isfinite(matrix)):
+            raise SceneError(f"node {node!r} has a non-finite transform")
+        node_meta = edge_meta.get(parents.get(node), {}).get("metadata")
+        mesh_meta = mesh.metadata.get("extras") if isinstance(mesh.metadata, dict) else None
+        mesh_meta = mesh_meta if isinstance(mesh_meta, dict) else mesh.metadata
+        cast = _flag(node_meta, "castShadow")
+        receive = _flag(node_meta, "receiveShadow")
+        cast = _flag(mesh_meta, "castShadow") if cast is None else cast
+        receive = _flag(mesh_meta, "receiveShadow") if receive is None else receive
+        prim = primitives[index_of[geom_name]]
+        instances.append(
+            Instance(
+                primitive=index_of[geom_name],
+                matrix=matrix,
+                cast_shadow=True if cast is None else cast,
+                receive_shadow=True if receive is None else receive,
+                name=str(node),
+                bounds=_world_bounds(prim.local_bounds.astype(np.float64), matrix),
+            )
+        )
+    if not instances:
+        raise SceneError("the scene has no triangles to render")
+    cameras, lights = _cameras_and_lights(header)
+    scene = Scene(primitives, instances, cameras, lights, key=digest.hexdigest())
+    if max_triangles is not None and scene.triangle_count > max_triangles:
+        raise LimitError(
+            "max_triangles",
+            f"the scene has {scene.triangle_count} triangles, over the limit of {max_triangles}",
+        )
+    return scene
+
+
+def scene_from_meshes(meshes: list, names: list[str] | None = None) -> Scene:
+    """Build a :class:`Scene` from trimesh meshes already in world space (tests, demo scenes).
+
+    Parameters
+    ----------
+    meshes : list of trimesh.Trimesh
+        ``mesh.metadata`` may hold ``castShadow`` / ``receiveShadow`` booleans.
+    """
+    primitives, instances = [], []
+    for i, mesh in enumerate(meshes):
+        name = names[i] if names else f"mesh_{i}"
+        prim = _primitive_from_trimesh(mesh, name)
+        primitives.append(prim)
+        meta = mesh.metadata if isinstance(mesh.metadata, dict) else {}
+        instances.append(
+            Instance(
+                primitive=i,
+                matrix=np.eye(4),
+                cast_shadow=_flag(meta, "castShadow") is not False,
+                receive_shadow=_flag(meta, "receiveShadow") is not False,
+                name=name,
+                bounds=prim.local_bounds.astype(np.float64),
+            )
+        )
+    if not instances:
+        raise SceneError("the scene has no triangles to render")
+    key = hashlib.sha256(b"".join(p.positions.tobytes() + p.indices.tobytes() for p in primitives))
+    return Scene(primitives, instances, key=key.hexdigest())
