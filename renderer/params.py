@@ -165,6 +165,9 @@ class RenderParams(_Model):
     shadows: ShadowParams = Field(default_factory=ShadowParams)
     outputs: list[Output] = Field(default_factory=lambda: ["color"], min_length=1)
     alpha: bool = Field(default=False, description="color output with an alpha channel")
+    ground: bool = Field(
+        default=False, description="add a ground plane under the scene to receive its shadows"
+    )
     reference: bool = Field(default=False, description="also trace the ray-traced reference")
     optimize: bool = Field(
         default=True, description="leave out work the scene does not need (render plan)"

@@ -65,7 +65,8 @@ class Primitive:
     indices : ndarray, shape (F, 3), uint32
     material : Material
     uv : ndarray or None, shape (N, 2), float32
-        ``TEXCOORD_0``, present only when the material has a texture.
+        ``TEXCOORD_0`` in trimesh's (OpenGL) convention: v = 1 - glTF v, so v = 0 is the bottom
+        row of the image. Present only when the material has a texture.
     colors : ndarray or None, shape (N, 4), float32
         ``COLOR_0`` (linear RGBA), present only when the file has vertex colours.
     """
@@ -151,6 +152,8 @@ class Scene:
     cameras: list[SceneCamera] = field(default_factory=list)
     lights: list[SceneLight] = field(default_factory=list)
     key: str = ""
+    #: Bounds the automatic camera frames, when not all of :attr:`bounds` (e.g. an added ground).
+    focus: np.ndarray | None = None
 
     @property
     def bounds(self) -> np.ndarray:
@@ -162,6 +165,34 @@ class Scene:
     def triangle_count(self) -> int:
         """Triangles drawn per pass, counting every instance."""
         return int(sum(len(self.primitives[i.primitive].indices) for i in self.instances))
+
+    def with_ground(self, color=(0.8, 0.8, 0.8, 1.0)) -> Scene:
+        """This scene plus a ground plane under it (receives shadows, casts none).
+
+        The plane lies just below the scene's lowest point (along +Y, glTF's up) and extends
+        three times the scene's footprint in every direction.
+        """
+        lo, hi = self.bounds
+        c = (lo + hi) / 2
+        r = max(float(np.max(hi - lo)), 1e-30) * 3
+        y = lo[1] - (hi[1] - lo[1]) * 1e-4
+        pos = np.array([[-r, 0, -r], [r, 0, -r], [r, 0, r], [-r, 0, r]], np.float64)
+        pos[:, [0, 2]] += c[[0, 2]]
+        pos[:, 1] = y
+        ground = Primitive(
+            positions=(pos - c).astype(np.float32),
+            normals=np.tile(np.float32([0, 1, 0]), (4, 1)),
+            indices=np.array([[0, 2, 1], [0, 3, 2]], np.uint32),
+            material=Material(np.asarray(color, np.float32), double_sided=True),
+            name="ground",
+        )
+        m = np.eye(4)
+        m[:3, 3] = c
+        inst = Instance(len(self.primitives), m, cast_shadow=False, receive_shadow=True,
+                        name="ground", bounds=np.stack([pos.min(axis=0), pos.max(axis=0)]))
+        return Scene(self.primitives + [ground], self.instances + [inst], self.cameras,
+                     self.lights, key=self.key + ":ground" if self.key else "",
+                     focus=np.stack([lo, hi]) if self.focus is None else self.focus)
 
     def world_triangles(self, instance: Instance) -> np.ndarray:
         """Triangles of one instance in world space.

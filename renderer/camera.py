@@ -1,0 +1,196 @@
+"""Resolving the viewing camera of a request into matrices.
+
+A request may give a pose, an eye/target pair, or nothing (use the file's camera, else frame the
+scene). Degenerate input is fixed where a meaning exists (an up vector parallel to the view
+direction is replaced) and refused where it does not (eye at the target, singular pose).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import RequestError
+from .params import CameraParams
+from .scene import Scene
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A resolved perspective camera.
+
+    Attributes
+    ----------
+    pose : ndarray, shape (4, 4), float64
+        Camera-to-world, orthonormal rotation; the camera looks down its local −Z, +Y up.
+    yfov : float
+        Vertical field of view in radians.
+    width, height : int
+        Image size in pixels; row 0 of every output is the top of the picture.
+    znear, zfar : float
+        Clip distances, fitted to the scene unless the request fixed them.
+    """
+
+    pose: np.ndarray
+    yfov: float
+    width: int
+    height: int
+    znear: float
+    zfar: float
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.pose[:3, 3]
+
+    @property
+    def view(self) -> np.ndarray:
+        """World-to-camera matrix, shape (4, 4)."""
+        return np.linalg.inv(self.pose)
+
+    @property
+    def projection(self) -> np.ndarray:
+        """OpenGL perspective projection, shape (4, 4)."""
+        return perspective(self.yfov, self.width / self.height, self.znear, self.zfar)
+
+    def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-space rays through every pixel centre.
+
+        Returns
+        -------
+        origins : ndarray, shape (H*W, 3)
+        directions : ndarray, shape (H*W, 3)
+            Unit vectors, row-major from the top-left pixel.
+        """
+        t = math.tan(self.yfov / 2)
+        aspect = self.width / self.height
+        xs = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * t * aspect
+        ys = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * t
+        gx, gy = np.meshgrid(xs, ys)
+        d = np.stack([gx, gy, -np.ones_like(gx)], axis=-1).reshape(-1, 3)
+        d = d @ self.pose[:3, :3].T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return np.broadcast_to(self.position, d.shape).copy(), d
+
+    def frustum_corners(self) -> np.ndarray:
+        """World-space corners of the view frustum, shape (8, 3)."""
+        t = math.tan(self.yfov / 2)
+        aspect = self.width / self.height
+        pts = []
+        for z in (self.znear, self.zfar):
+            for sx in (-1, 1):
+                for sy in (-1, 1):
+                    pts.append((sx * z * t * aspect, sy * z * t, -z))
+        p = np.array(pts)
+        return p @ self.pose[:3, :3].T + self.pose[:3, 3]
+
+
+def perspective(yfov: float, aspect: float, znear: float, zfar: float) -> np.ndarray:
+    """OpenGL perspective projection matrix, shape (4, 4)."""
+    f = 1.0 / math.tan(yfov / 2)
+    m = np.zeros((4, 4))
+    m[0, 0] = f / aspect
+    m[1, 1] = f
+    m[2, 2] = (zfar + znear) / (znear - zfar)
+    m[2, 3] = 2 * zfar * znear / (znear - zfar)
+    m[3, 2] = -1.0
+    return m
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """Pose (4, 4) at ``eye`` looking at ``target`` (−Z toward it).
+
+    An ``up`` parallel to the view direction is replaced by the world axis least aligned with it,
+    so a light straight above its target still gets a valid frame.
+
+    Raises
+    ------
+    RequestError
+        When ``eye`` and ``target`` coincide (no direction exists).
+    """
+    eye = np.asarray(eye, np.float64)
+    forward = np.asarray(target, np.float64) - eye
+    return pose_from_direction(eye, forward, up)
+
+
+def pose_from_direction(
+    position: np.ndarray, forward: np.ndarray, up: np.ndarray | None = None
+) -> np.ndarray:
+    """Pose (4, 4) at ``position`` whose −Z points along ``forward``."""
+    forward = np.asarray(forward, np.float64)
+    n = np.linalg.norm(forward)
+    scale = max(1.0, float(np.max(np.abs(position))))
+    if not np.isfinite(n) or n <= 1e-12 * scale:
+        raise RequestError("the view direction has zero length (position equals target?)")
+    z = -forward / n
+    up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, np.float64)
+    un = np.linalg.norm(up)
+    if un <= 0 or abs(np.dot(up / un, z)) > 0.999:
+        up = np.eye(3)[int(np.argmin(np.abs(z)))]
+    x = np.cross(up, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, position
+    return pose
+
+
+def orthonormalize_pose(matrix: np.ndarray, what: str) -> np.ndarray:
+    """Turn a user pose into a rigid one (rotation + translation).
+
+    Scale and shear are removed with the polar decomposition (the nearest rotation); a mirrored
+    or singular matrix has no orientation and is refused.
+    """
+    m = np.asarray(matrix, np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise RequestError(f"{what} pose must be a finite 4x4 matrix")
+    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-9):
+        raise RequestError(f"{what} pose must have a last row of [0, 0, 0, 1]")
+    r = m[:3, :3]
+    u, s, vt = np.linalg.svd(r)
+    if s[-1] <= 1e-9 * max(s[0], 1e-300) or np.linalg.det(r) <= 0:
+        raise RequestError(f"{what} pose is singular or mirrored: it has no orientation")
+    out = np.eye(4)
+    out[:3, :3] = u @ vt
+    out[:3, 3] = m[:3, 3]
+    return out
+
+
+def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height: int) -> Camera:
+    """Resolve the request's camera against a scene.
+
+    Order: the request's pose or eye/target; else the file's first camera; else an automatic
+    framing that looks at the scene's centre from the front, above and to the side, far enough for
+    the bounding sphere to fit the vertical and horizontal field of view.
+    """
+    params = params or CameraParams()
+    lo, hi = scene.bounds if scene.focus is None else scene.focus
+    centre = (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
+    yfov = math.radians(params.yfov_deg)
+    if params.pose is not None:
+        pose = orthonormalize_pose(np.array(params.pose), "camera")
+    elif params.eye is not None:
+        pose = look_at(np.array(params.eye), np.array(params.target), np.array(params.up))
+    elif scene.cameras:
+        pose = scene.cameras[0].pose
+        yfov = scene.cameras[0].yfov
+    else:
+        aspect = width / height
+        half = min(yfov, 2 * math.atan(math.tan(yfov / 2) * aspect)) / 2
+        dist = radius / math.sin(half) * 1.05
+        direction = np.array([0.6, 0.55, 1.0])
+        direction /= np.linalg.norm(direction)
+        pose = look_at(centre + direction * dist, centre)
+    # Near/far follow the scene: the tightest range containing its bounding sphere, so depth
+    # precision does not depend on the scene's scale or distance from the origin.
+    lo, hi = scene.bounds
+    centre = (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
+    dist_c = float(np.linalg.norm(centre - pose[:3, 3]))
+    zfar = params.zfar or (dist_c + radius) * 1.01
+    znear = params.znear or max(dist_c - radius, zfar * 1e-4, 1e-30)
+    if znear >= zfar:
+        raise RequestError("camera znear must be smaller than zfar")
+    return Camera(pose, yfov, width, height, znear, zfar)

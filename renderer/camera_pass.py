@@ -1,0 +1,299 @@
+"""The camera pass: shade the visible objects, comparing against each light's shadow map.
+
+Writes the colour image, and only when asked for, the per-light visibility (float targets) and
+the camera depth. Opaque and alpha-masked objects are drawn first; blended objects after them,
+back to front, without writing depth or visibility.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from OpenGL import GL
+
+from . import encodings
+from .gpu import Framebuffer, GpuPrimitive, GpuScene
+from .light_pass import ShadowMap
+from .params import RenderParams
+from .plan import RenderPlan
+from .shaders import Program, ProgramCache
+
+VERT = ("camera_pass.vert",)
+FRAG = ("depth_encoding.glsl", "shadow_lookup.glsl", "camera_pass.frag")
+LIGHT_TYPES = {"directional": 0, "spot": 1, "point": 2}
+MAX_LIGHTS = 8
+# Attribute slots that no VAO enables: reading them yields the constant set with glVertexAttrib,
+# which is how the generic variant feeds white colours and (0, 0) UVs to primitives without them.
+SPARE_UV, SPARE_COLOR = 14, 15
+
+
+@dataclass
+class CameraOutputs:
+    """Read-back images; each None unless requested.
+
+    color : (H, W, 3|4) uint8; visibility : (H, W, L) float32; depth : (H, W) float32.
+    """
+
+    color: np.ndarray | None = None
+    visibility: np.ndarray | None = None
+    depth: np.ndarray | None = None
+
+
+class CameraPass:
+    """Owns the camera framebuffer (re-created when the size or outputs change)."""
+
+    def __init__(self, programs: ProgramCache) -> None:
+        self.programs = programs
+        self.fbo: Framebuffer | None = None
+        self._fbo_key: tuple | None = None
+        self._white = 0
+
+    def _framebuffer(self, width: int, height: int, vis_targets: int) -> Framebuffer:
+        key = (width, height, vis_targets)
+        if self._fbo_key != key:
+            if self.fbo is not None:
+                self.fbo.release()
+                self.fbo = None
+            colors = [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)]
+            colors += [(GL.GL_RGBA32F, GL.GL_RGBA, GL.GL_FLOAT)] * vis_targets
+            self.fbo = Framebuffer(width, height, colors, (GL.GL_DEPTH_COMPONENT32F, True))
+            self._fbo_key = key
+        return self.fbo
+
+    def _white_texture(self) -> int:
+        if not self._white:
+            self._white = GL.glGenTextures(1)
+            GL.glBindTexture(GL.GL_TEXTURE_2D, self._white)
+            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA8, 1, 1, 0, GL.GL_RGBA,
+                            GL.GL_UNSIGNED_BYTE, np.full(4, 255, np.uint8))
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_NEAREST)
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_NEAREST)
+        return self._white
+
+    def render(self, gpu: GpuScene, plan: RenderPlan, maps: list[ShadowMap],
+               params: RenderParams) -> None:
+        """Draw the frame into the camera framebuffer (read it back with :meth:`read`)."""
+        cam = plan.camera
+        n_lights = len(plan.lights)
+        want_vis = "visibility" in params.outputs and n_lights > 0
+        vis_targets = (n_lights + 3) // 4 if want_vis else 0
+        fb = self._framebuffer(cam.width, cam.height, vis_targets)
+        fb.bind()
+        bg = np.asarray(params.background, np.float32)
+        GL.glClearBufferfv(GL.GL_COLOR, 0, bg)
+        for i in range(vis_targets):
+            GL.glClearBufferfv(GL.GL_COLOR, 1 + i, np.full(4, np.nan, np.float32))
+        GL.glClearBufferfv(GL.GL_DEPTH, 0, np.ones(1, np.float32))
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthFunc(GL.GL_LESS)
+        GL.glDepthMask(GL.GL_TRUE)
+        GL.glEnable(GL.GL_TEXTURE_CUBE_MAP_SEAMLESS)
+        GL.glDisable(GL.GL_BLEND)
+
+        view = plan.camera.view.copy()
+        view[:3, 3] += view[:3, :3] @ plan.origin  # world-relative-to-origin -> camera
+        view_proj = cam.projection @ view
+        frame = _FrameState(plan, maps, params, view_proj, cam.position - plan.origin, vis_targets,
+                            generic=not params.optimize)
+        units = self._bind_maps(maps)
+        opaque, blended = [], []
+        for inst in plan.visible:
+            p, slot = gpu.slot_of[inst]
+            gp = gpu.primitives[p]
+            mat = gpu.scene.primitives[gpu.scene.instances[inst].primitive].material
+            (blended if mat.alpha_mode == "BLEND" else opaque).append((p, slot, inst))
+        self._draw_group(gpu, _group(opaque), frame, units)
+        if blended:
+            # Back to front by box centre; no depth or visibility writes for transparent surfaces.
+            eye = cam.position
+            blended.sort(key=lambda e: -np.linalg.norm(gpu.scene.instances[e[2]].bounds.mean(0) - eye))
+            GL.glEnable(GL.GL_BLEND)
+            GL.glBlendFuncSeparate(GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA, GL.GL_ONE,
+                                   GL.GL_ONE_MINUS_SRC_ALPHA)
+            GL.glDepthMask(GL.GL_FALSE)
+            for i in range(vis_targets):
+                GL.glColorMaski(1 + i, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
+            for p, slot, _ in blended:
+                self._draw_group(gpu, [(p, [slot])], frame, units)
+            for i in range(vis_targets):
+                GL.glColorMaski(1 + i, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
+            GL.glDepthMask(GL.GL_TRUE)
+            GL.glDisable(GL.GL_BLEND)
+
+    def _bind_maps(self, maps: list[ShadowMap]) -> list[int]:
+        """Bind every map to its own texture unit (from 1; unit 0 is the base colour texture)."""
+        units = []
+        for i, sm in enumerate(maps):
+            GL.glActiveTexture(GL.GL_TEXTURE1 + i)
+            GL.glBindTexture(sm.target, sm.texture)
+            units.append(1 + i)
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        return units
+
+    def _draw_group(self, gpu: GpuScene, groups: list[tuple[int, list[int]]], frame: _FrameState,
+                    units: list[int]) -> None:
+        for p, slots in groups:
+            gp = gpu.primitives[p]
+            mat = gpu.scene.primitives[gpu.scene.instances[gp.instances[0]].primitive].material
+            receive = gpu.scene.instances[gp.instances[slots[0]]].receive_shadow
+            prog = self.programs.get(VERT, FRAG, frame.defines(gp, mat))
+            prog.use()
+            frame.set_frame_uniforms(prog, units)
+            prog.set("u_base_color", mat.base_color)
+            if frame.has_uv(gp):
+                GL.glActiveTexture(GL.GL_TEXTURE0)
+                if gp.texture is not None:
+                    gp.texture._bind()
+                else:
+                    GL.glBindTexture(GL.GL_TEXTURE_2D, self._white_texture())
+                    GL.glVertexAttrib2f(SPARE_UV, 0.0, 0.0)
+                prog.set("u_base_texture", 0)
+            if frame.generic and gp.mesh.color_0 is None:
+                GL.glVertexAttrib4f(SPARE_COLOR, 1.0, 1.0, 1.0, 1.0)
+            if frame.alpha_mask(mat):
+                prog.set("u_alpha_cutoff", mat.alpha_cutoff if mat.alpha_mode == "MASK" else -1.0)
+            if frame.maps:
+                prog.set("u_receive_shadow", int(receive))
+            if mat.double_sided or mat.alpha_mode == "BLEND":
+                GL.glDisable(GL.GL_CULL_FACE)
+            else:
+                GL.glEnable(GL.GL_CULL_FACE)
+                GL.glCullFace(GL.GL_BACK)
+            gp.draw(None if len(slots) == len(gp.instances) else slots)
+        GL.glDisable(GL.GL_CULL_FACE)
+
+    def read(self, outputs: list[str], n_lights: int, alpha: bool, camera) -> CameraOutputs:
+        """Read back the requested outputs of the last frame."""
+        fb = self.fbo
+        out = CameraOutputs()
+        if "color" in outputs:
+            rgba = fb.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
+            out.color = np.ascontiguousarray(rgba if alpha else rgba[..., :3])
+        if "visibility" in outputs and n_lights > 0:
+            parts = [
+                fb.read_color(1 + i, GL.GL_RGBA, GL.GL_FLOAT, 4, np.float32)
+                for i in range((n_lights + 3) // 4)
+            ]
+            out.visibility = np.ascontiguousarray(np.concatenate(parts, axis=2)[..., :n_lights])
+        if "depth" in outputs:
+            d = fb.read_depth().astype(np.float64)
+            n, f = camera.znear, camera.zfar
+            z = 2 * n * f / ((f + n) - (2 * d - 1) * (f - n))
+            out.depth = np.where(d >= 1.0, np.nan, z).astype(np.float32)
+        return out
+
+    def release(self) -> None:
+        if self.fbo is not None:
+            self.fbo.release()
+            self.fbo = None
+            self._fbo_key = None
+        if self._white:
+            GL.glDeleteTextures([self._white])
+            self._white = 0
+
+
+def _group(entries: list[tuple[int, int, int]]) -> list[tuple[int, list[int]]]:
+    by: dict[int, list[int]] = {}
+    for p, slot, _ in entries:
+        by.setdefault(p, []).append(slot)
+    return list(by.items())
+
+
+class _FrameState:
+    """Defines and uniforms shared by every draw of one frame."""
+
+    def __init__(self, plan: RenderPlan, maps: list[ShadowMap], params: RenderParams,
+                 view_proj: np.ndarray, eye: np.ndarray, vis_targets: int, generic: bool):
+        self.plan, self.maps, self.params = plan, maps, params
+        self.view_proj, self.eye, self.vis_targets = view_proj, eye, vis_targets
+        self.generic = generic
+        lights = [lp.light for lp in plan.lights]
+        self.n_2d = sum(1 for m in maps if m.plan.kind != "cube")
+        self.n_cube = sum(1 for m in maps if m.plan.kind == "cube")
+        self.has_spot = generic or any(lt.type == "spot" for lt in lights)
+        self.has_positional = generic or any(lt.type != "directional" for lt in lights)
+        shadows = params.shadows
+        self.pcf = bool(maps) and (generic or shadows.filter == "pcf")
+        self.pcf_radius = shadows.pcf_kernel // 2 if shadows.filter == "pcf" else 0
+        # Map slot of each light: >= 0 2D index, <= -2 cube index, -1 none.
+        slot, i2, ic = {}, 0, 0
+        for m in maps:
+            if m.plan.kind == "cube":
+                slot[m.plan.index] = -2 - ic
+                ic += 1
+            else:
+                slot[m.plan.index] = i2
+                i2 += 1
+        self.map_slot = [slot.get(lp.index, -1) for lp in plan.lights]
+
+    def has_uv(self, gp: GpuPrimitive) -> bool:
+        return self.generic or gp.texture is not None
+
+    def alpha_mask(self, mat) -> bool:
+        return self.generic or mat.alpha_mode == "MASK"
+
+    def defines(self, gp: GpuPrimitive, mat) -> dict:
+        shadows = self.params.shadows
+        has_color = gp.mesh.color_0 is not None
+        d = {
+            "NUM_LIGHTS": len(self.plan.lights),
+            "NUM_MAPS_2D": self.n_2d,
+            "NUM_MAPS_CUBE": self.n_cube,
+            "HAS_SPOT": self.has_spot,
+            "HAS_POSITIONAL": self.has_positional,
+            "HAS_UV": self.has_uv(gp),
+            "HAS_COLOR": self.generic or has_color,
+            "ALPHA_MASK": self.alpha_mask(mat),
+            "OUT_VISIBILITY": self.vis_targets,
+            "ENCODING": encodings.ENCODING_ID[shadows.encoding],
+            "FILTER_PCF": self.pcf,
+            "PCF_RADIUS": self.pcf_radius,
+            "HW_PCF": shadows.encoding == "depth" and shadows.filter == "pcf",
+            "LOC_MODEL": gp.loc_model,
+        }
+        if d["HAS_UV"]:
+            d["LOC_UV"] = gp.loc_uv if gp.texture is not None else SPARE_UV
+        if d["HAS_COLOR"]:
+            d["LOC_COLOR"] = gp.loc_color if has_color else SPARE_COLOR
+        return d
+
+    def set_frame_uniforms(self, prog: Program, units: list[int]) -> None:
+        p = self.params
+        prog.set("u_view_proj", self.view_proj)
+        prog.set("u_camera_position", self.eye)
+        prog.set("u_ambient", p.ambient)
+        prog.set("u_specular", p.specular)
+        prog.set("u_shininess", p.shininess)
+        lights = self.plan.lights
+        if lights:
+            origin = self.plan.origin
+            prog.set("u_light_direction", [lp.light.direction for lp in lights])
+            prog.set("u_light_radiance",
+                     [np.asarray(lp.light.color) * lp.light.intensity for lp in lights])
+            if self.has_positional:
+                prog.set("u_light_type", [LIGHT_TYPES[lp.light.type] for lp in lights])
+                prog.set("u_light_position", [lp.light.position - origin for lp in lights])
+                prog.set("u_light_range", [lp.light.range or 0.0 for lp in lights])
+            if self.has_spot:
+                prog.set("u_light_cone", [(np.cos(lp.light.outer_cone), np.cos(lp.light.inner_cone))
+                                          for lp in lights])
+            if self.maps:
+                prog.set("u_light_map", self.map_slot)
+        if not self.maps:
+            return
+        b = p.shadows.bias
+        prog.set("u_bias", (b.constant, b.slope, b.slope_max, b.normal_offset))
+        prog.set("u_bias_steps", b.quantisation_steps)
+        two_d = [m for m in self.maps if m.plan.kind != "cube"]
+        cubes = [m for m in self.maps if m.plan.kind == "cube"]
+        if two_d:
+            prog.set("u_map2d", [units[self.maps.index(m)] for m in two_d])
+            prog.set("u_map2d_view", [m.plan.view for m in two_d])
+            prog.set("u_map2d_proj", [m.plan.proj for m in two_d])
+            prog.set("u_map2d_range", [(m.plan.near, m.plan.far, 0.0, m.plan.size) for m in two_d])
+            prog.set("u_map2d_texel", [m.plan.texel for m in two_d])
+        if cubes:
+            prog.set("u_mapcube", [units[self.maps.index(m)] for m in cubes])
+            prog.set("u_mapcube_position", [m.plan.position for m in cubes])
+            prog.set("u_mapcube_range", [(m.plan.near, m.plan.far, m.plan.size) for m in cubes])

@@ -1,0 +1,85 @@
+"""CPU mirrors of the depth encodings in ``shaders/depth_encoding.glsl``.
+
+Used to decode read-back shadow maps (the ``light_depth`` output) and to check the GL packing in
+the tests. Each function works on arrays of any shape.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Step of each encoding in units of the normalised depth t. The byte packings carry 24 bits:
+# that is all a float32 depth holds, so rgba8's fourth byte adds nothing in practice.
+STEP = {
+    "r8": 1.0 / 255.0,
+    "rg8": 1.0 / 2550.0,
+    "rgb8": 2.0**-24,
+    "rgba8": 2.0**-24,
+    "depth": 2.0**-24,
+}
+CHANNELS = {"r8": 1, "rg8": 2, "rgb8": 3, "rgba8": 4, "depth": 0}
+ENCODING_ID = {"depth": 0, "r8": 1, "rg8": 2, "rgb8": 3, "rgba8": 4}
+
+
+def _bytes(t: np.ndarray) -> np.ndarray:
+    """Four bytes of t, most significant first; shape (..., 4) uint8."""
+    t = np.clip(np.asarray(t, np.float64), 0.0, 1.0 - 2.0**-24)
+    q = np.floor(t * 2.0**32).astype(np.uint64)
+    return np.stack([(q >> s) & 0xFF for s in (24, 16, 8, 0)], axis=-1).astype(np.uint8)
+
+
+def encode(t: np.ndarray, encoding: str) -> np.ndarray:
+    """Bytes the light pass stores for depths ``t``; shape (..., 4) uint8 (RGBA)."""
+    t = np.asarray(t, np.float64)
+    out = np.zeros(t.shape + (4,), np.uint8)
+    out[..., 3] = 255
+    if encoding == "r8":
+        out[..., 0] = np.rint(np.clip(t, 0, 1) * 255)
+    elif encoding == "rg8":
+        value = np.clip(t, 0, 1) * 10.0
+        whole = np.floor(value)
+        out[..., 0] = np.rint(whole * 0.1 * 255)
+        out[..., 1] = np.rint((value - whole) * 255)
+    elif encoding == "rgb8":
+        b = _bytes(t)
+        out[..., 0], out[..., 1], out[..., 2] = b[..., 2], b[..., 1], b[..., 0]
+    elif encoding == "rgba8":
+        out[:] = _bytes(t)
+    else:
+        raise ValueError(f"{encoding!r} has no colour packing")
+    return out
+
+
+def decode(rgba: np.ndarray, encoding: str) -> np.ndarray:
+    """Normalised depth from stored RGBA8 texels (..., 4) uint8; float64, same leading shape."""
+    c = np.asarray(rgba, np.float64)
+    if encoding == "r8":
+        return c[..., 0] / 255.0
+    if encoding == "rg8":
+        return (np.floor(c[..., 0] / 255.0 * 10.0 + 0.5) + c[..., 1] / 255.0) * 0.1
+    if encoding == "rgb8":
+        return c[..., 0] / 2.0**24 + c[..., 1] / 2.0**16 + c[..., 2] / 2.0**8
+    if encoding == "rgba8":
+        return c[..., 0] / 2.0**8 + c[..., 1] / 2.0**16 + c[..., 2] / 2.0**24 + c[..., 3] / 2.0**32
+    raise ValueError(f"{encoding!r} has no colour packing")
+
+
+def debug_image(t: np.ndarray) -> np.ndarray:
+    """8-bit grayscale picture of a decoded map: near = dark, empty (t >= 1) = white.
+
+    Parameters
+    ----------
+    t : ndarray, shape (S, S) or (6, S, S)
+        Decoded linear depth, NaN where nothing was drawn. Cube maps are laid out 3 x 2
+        (+X -X +Y / -Y +Z -Z).
+
+    Returns
+    -------
+    ndarray, shape (S, S) or (2S, 3S), uint8
+    """
+    img = np.where(np.isfinite(t), np.clip(t, 0.0, 1.0) * 254.0, 255.0)
+    img = np.rint(img).astype(np.uint8)
+    if img.ndim == 3:
+        rows = [np.concatenate(list(img[r * 3 : r * 3 + 3]), axis=1) for r in range(2)]
+        img = np.concatenate(rows, axis=0)
+    return img

@@ -1,0 +1,181 @@
+"""The light pass: render each light's shadow map.
+
+One FBO per map, from a small pool reused across renders. Colour encodings render the packed depth
+into an RGBA8 texture with a float depth renderbuffer for the depth test; the ``depth`` encoding
+renders into a ``GL_DEPTH_COMPONENT32F`` texture set up for hardware compare (sampler2DShadow).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from OpenGL import GL
+
+from . import encodings
+from .gpu import Framebuffer, GpuScene
+from .params import ShadowParams
+from .plan import LightPlan
+from .shaders import ProgramCache
+
+VERT = ("light_pass.vert",)
+FRAG = ("depth_encoding.glsl", "light_pass.frag")
+
+
+@dataclass(eq=False)
+class ShadowMap:
+    """A rendered map: ``texture`` is the texture to sample (colour or depth), ``target`` its type."""
+
+    plan: LightPlan
+    fbo: Framebuffer
+    encoding: str
+
+    @property
+    def texture(self) -> int:
+        return self.fbo.depth_texture if self.encoding == "depth" else self.fbo.color_textures[0]
+
+    @property
+    def target(self) -> int:
+        return GL.GL_TEXTURE_CUBE_MAP if self.plan.kind == "cube" else GL.GL_TEXTURE_2D
+
+    def read_depth(self) -> np.ndarray:
+        """Decoded linear depth, NaN where nothing was drawn.
+
+        Returns
+        -------
+        ndarray, shape (S, S) or (6, S, S), float32
+            Row 0 is the top of the light's view (+Y of the light).
+        """
+        faces = range(6) if self.plan.kind == "cube" else [None]
+        out = []
+        for face in faces:
+            if face is not None:
+                if face not in self.plan.faces:
+                    out.append(np.full((self.fbo.height, self.fbo.width), np.nan, np.float32))
+                    continue
+                self.fbo.bind_face(face)
+            if self.encoding == "depth":
+                t = self.fbo.read_depth().astype(np.float64)
+            else:
+                rgba = self.fbo.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
+                t = encodings.decode(rgba, self.encoding)
+            t = np.where(t >= 1.0 - 1e-6, np.nan, t).astype(np.float32)
+            out.append(t)
+        return out[0] if face is None else np.stack(out)
+
+
+class LightPass:
+    """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, filter)."""
+
+    def __init__(self, programs: ProgramCache, pool_size: int = 8) -> None:
+        self.programs = programs
+        self.pool: dict[tuple, list[Framebuffer]] = {}
+        self.pool_size = pool_size
+
+    def _framebuffer(self, key: tuple, taken: set[int]) -> Framebuffer:
+        kind, size, encoding, linear = key
+        for fb in self.pool.get(key, []):
+            if id(fb) not in taken:
+                return fb
+        cube = kind == "cube"
+        if encoding == "depth":
+            fb = Framebuffer(size, size, [], (GL.GL_DEPTH_COMPONENT32F, True), cube=cube,
+                             depth_compare=True, linear=linear)
+        else:
+            fb = Framebuffer(size, size, [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)],
+                             (GL.GL_DEPTH_COMPONENT32F, False), cube=cube)
+        self.pool.setdefault(key, []).append(fb)
+        self._trim()
+        return fb
+
+    def _trim(self) -> None:
+        total = sum(len(v) for v in self.pool.values())
+        while total > self.pool_size:
+            key = next(iter(self.pool))
+            self.pool[key].pop(0).release()
+            if not self.pool[key]:
+                del self.pool[key]
+            total -= 1
+
+    def render(self, gpu: GpuScene, plans: list[LightPlan], shadows: ShadowParams
+               ) -> list[ShadowMap]:
+        """Render the maps of every light that has one; lights without a plan get no map."""
+        maps = []
+        taken: set[int] = set()
+        linear = shadows.encoding == "depth" and shadows.filter == "pcf"
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthFunc(GL.GL_LESS)
+        GL.glDepthMask(GL.GL_TRUE)
+        GL.glDisable(GL.GL_BLEND)
+        GL.glDisable(GL.GL_CULL_FACE)  # both faces cast: thin and open geometry must not leak
+        for lp in plans:
+            if lp.kind is None:
+                continue
+            fb = self._framebuffer((lp.kind, lp.size, shadows.encoding, linear), taken)
+            taken.add(id(fb))
+            views = [(f, lp.face_views[f]) for f in lp.faces] if lp.kind == "cube" else [(None, lp.view)]
+            for face, view in views:
+                if face is None:
+                    fb.bind()
+                else:
+                    fb.bind_face(face)
+                GL.glClearColor(1.0, 1.0, 1.0, 1.0)
+                GL.glClearDepth(1.0)
+                GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
+                self._draw_casters(gpu, lp, view, shadows)
+            maps.append(ShadowMap(lp, fb, shadows.encoding))
+        return maps
+
+    def _draw_casters(self, gpu: GpuScene, lp: LightPlan, view: np.ndarray,
+                      shadows: ShadowParams) -> None:
+        perspective = lp.kind != "ortho"
+        po_factor, po_units = shadows.bias.polygon_offset
+        polygon_offset = bool(po_factor or po_units)
+        by_prim: dict[int, list[int]] = {}
+        for inst in lp.casters:
+            p, slot = gpu.slot_of[inst]
+            by_prim.setdefault(p, []).append(slot)
+        for p, slots in by_prim.items():
+            gp = gpu.primitives[p]
+            mat = gpu.scene.primitives[gpu.scene.instances[gp.instances[0]].primitive].material
+            cutoff = _shadow_cutoff(mat)
+            if cutoff is not None and gp.texture is None and mat.base_color[3] < cutoff:
+                continue  # wholly transparent for shadows
+            alpha_test = cutoff is not None and gp.texture is not None
+            defines = {
+                "ENCODING": encodings.ENCODING_ID[shadows.encoding],
+                "ALPHA_TEST": alpha_test,
+                "LOC_UV": gp.loc_uv,
+                "LOC_MODEL": gp.loc_model,
+                "WRITE_DEPTH": perspective or (polygon_offset and shadows.encoding == "depth"),
+                "POLYGON_OFFSET": polygon_offset,
+            }
+            prog = self.programs.get(VERT, FRAG, defines)
+            prog.use()
+            prog.set("u_light_view", view)
+            prog.set("u_light_proj", lp.proj)
+            prog.set("u_depth_range", (lp.near, lp.far))
+            if polygon_offset:
+                prog.set("u_polygon_offset", (po_factor, po_units))
+            if alpha_test:
+                GL.glActiveTexture(GL.GL_TEXTURE0)
+                gp.texture._bind()
+                prog.set("u_base_texture", 0)
+                prog.set("u_base_alpha", float(mat.base_color[3]))
+                prog.set("u_alpha_cutoff", cutoff)
+            gp.draw(None if len(slots) == len(gp.instances) else slots)
+
+    def release(self) -> None:
+        for fbs in self.pool.values():
+            for fb in fbs:
+                fb.release()
+        self.pool.clear()
+
+
+def _shadow_cutoff(material) -> float | None:
+    """Alpha below which a material casts no shadow: its cutoff for MASK, 0.5 for BLEND."""
+    if material.alpha_mode == "MASK":
+        return float(material.alpha_cutoff)
+    if material.alpha_mode == "BLEND":
+        return 0.5
+    return None

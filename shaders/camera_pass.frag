@@ -1,0 +1,221 @@
+#version 410 core
+// Camera pass: base colour x (ambient + sum over lights of visibility x (diffuse + specular)).
+// Ambient is never shadowed and a shadowed point gets no specular (visibility scales both).
+//
+// Variant defines: NUM_LIGHTS, NUM_MAPS_2D, NUM_MAPS_CUBE, HAS_SPOT, HAS_POSITIONAL, HAS_UV,
+// HAS_COLOR, ALPHA_MASK, OUT_VISIBILITY (number of RGBA visibility targets), ENCODING,
+// FILTER_PCF, PCF_RADIUS, HW_PCF.
+#define LIGHT_DIRECTIONAL 0
+#define LIGHT_SPOT 1
+#define LIGHT_POINT 2
+
+in vec3 v_world;
+in vec3 v_normal;
+#if HAS_UV
+in vec2 v_uv;
+uniform sampler2D u_base_texture;
+#endif
+#if HAS_COLOR
+in vec4 v_color;
+#endif
+
+uniform vec4 u_base_color;
+#if ALPHA_MASK
+uniform float u_alpha_cutoff;
+#endif
+uniform vec3 u_ambient;
+uniform vec3 u_camera_position;
+uniform float u_specular;
+uniform float u_shininess;
+
+#if NUM_LIGHTS > 0
+uniform int u_light_type[NUM_LIGHTS];
+uniform vec3 u_light_position[NUM_LIGHTS];
+uniform vec3 u_light_direction[NUM_LIGHTS];  // the way the light travels
+uniform vec3 u_light_radiance[NUM_LIGHTS];   // colour x intensity
+uniform int u_light_map[NUM_LIGHTS];         // >= 0: 2D map; <= -2: cube map -(m + 2); -1: none
+#if HAS_SPOT
+uniform vec2 u_light_cone[NUM_LIGHTS];       // cos(outer), cos(inner)
+#endif
+#if HAS_POSITIONAL
+uniform float u_light_range[NUM_LIGHTS];     // 0: unlimited
+#endif
+#endif
+
+#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
+uniform int u_receive_shadow;
+uniform vec4 u_bias;         // constant, slope, slope max, normal offset (texels)
+uniform float u_bias_steps;  // quantisation bias in steps of the encoding
+#endif
+#if NUM_MAPS_2D > 0
+uniform MAP2D u_map2d[NUM_MAPS_2D];
+uniform mat4 u_map2d_view[NUM_MAPS_2D];
+uniform mat4 u_map2d_proj[NUM_MAPS_2D];
+// near, far, texel world size: x + y * depth (ortho: y = 0; perspective: x = 0), map size
+uniform vec4 u_map2d_range[NUM_MAPS_2D];
+uniform vec2 u_map2d_texel[NUM_MAPS_2D];
+#endif
+#if NUM_MAPS_CUBE > 0
+uniform MAPCUBE u_mapcube[NUM_MAPS_CUBE];
+uniform vec3 u_mapcube_position[NUM_MAPS_CUBE];
+uniform vec3 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size
+#endif
+
+layout(location = 0) out vec4 o_color;
+#if OUT_VISIBILITY > 0
+layout(location = 1) out vec4 o_visibility0;
+#endif
+#if OUT_VISIBILITY > 1
+layout(location = 2) out vec4 o_visibility1;
+#endif
+
+vec3 srgb_to_linear(vec3 c) {
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
+}
+
+vec3 linear_to_srgb(vec3 c) {
+    c = clamp(c, 0.0, 1.0);
+    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}
+
+#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
+// Depth bias in world units at a receiver whose texel has world size `texel`, for a surface at
+// angle acos(cos_l) to the light: a texel-sized constant plus the depth change across a texel.
+float bias_world(float texel, float tan_l) {
+    float slope = min(tan_l, u_bias.z);
+#if HW_PCF
+    slope *= 2.0;  // bilinear compare reaches one texel further
+#endif
+    return texel * (u_bias.x + u_bias.y * slope);
+}
+#endif
+
+#if NUM_MAPS_2D > 0
+float visibility_2d(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
+    vec4 range = u_map2d_range[m];
+    float depth = -(u_map2d_view[m] * vec4(p, 1.0)).z;
+    float texel = u_map2d_texel[m].x + u_map2d_texel[m].y * depth;
+    vec3 q = p + ng * (u_bias.w * texel * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
+    vec4 view = u_map2d_view[m] * vec4(q, 1.0);
+    vec4 clip = u_map2d_proj[m] * view;
+    vec2 uv = clip.xy / clip.w * 0.5 + 0.5;
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
+    float span = range.y - range.x;
+    float t = (-view.z - range.x) / span;
+    float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+    // The receiver's plane in light view space: depth changes by (n.x dx + n.y dy) / n.z.
+    vec3 nl = mat3(u_map2d_view[m]) * ng;
+    vec2 dref = clamp(nl.xy / max(nl.z, 1e-6), -u_bias.z, u_bias.z) * (texel / span);
+    return shadow_2d(u_map2d[m], uv, ref, dref, range.w);
+}
+#endif
+
+#if NUM_MAPS_CUBE > 0
+float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
+    vec3 range = u_mapcube_range[m];
+    vec3 d = p - u_mapcube_position[m];
+    vec3 a = abs(d);
+    float depth = max(a.x, max(a.y, a.z));
+    float texel = 2.0 * depth / range.z;  // 90-degree faces
+    vec3 q = p + ng * (u_bias.w * texel * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
+    d = q - u_mapcube_position[m];
+    a = abs(d);
+    depth = max(a.x, max(a.y, a.z));
+    vec3 axis;
+    vec3 u;
+    vec3 v;
+    if (a.x >= a.y && a.x >= a.z) {
+        axis = vec3(sign(d.x), 0.0, 0.0); u = vec3(0.0, 1.0, 0.0); v = vec3(0.0, 0.0, 1.0);
+    } else if (a.y >= a.z) {
+        axis = vec3(0.0, sign(d.y), 0.0); u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 0.0, 1.0);
+    } else {
+        axis = vec3(0.0, 0.0, sign(d.z)); u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 1.0, 0.0);
+    }
+    float span = range.y - range.x;
+    float t = (depth - range.x) / span;
+    float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+    // Moving by w across the face on the receiver's plane changes the face depth by -(n.w)/(n.a).
+    float na = dot(ng, axis);
+    vec2 slope = -vec2(dot(ng, u), dot(ng, v)) / (abs(na) > 1e-6 ? na : -1e-6);
+    vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
+    return shadow_cube(u_mapcube[m], d, ref, dref, u * texel, v * texel);
+}
+#endif
+
+void main() {
+    vec4 base = u_base_color;
+#if HAS_UV
+    vec4 tex = texture(u_base_texture, v_uv);
+    base *= vec4(srgb_to_linear(tex.rgb), tex.a);
+#endif
+#if HAS_COLOR
+    base *= v_color;
+#endif
+#if ALPHA_MASK
+    if (base.a < u_alpha_cutoff) discard;
+#endif
+    vec3 p = v_world;
+    vec3 to_eye = normalize(u_camera_position - p);
+    vec3 n = normalize(v_normal);
+    if (dot(n, to_eye) < 0.0) n = -n;  // light the side that is seen
+    // Geometric normal, facing the camera: the true slope of the surface for the bias.
+    vec3 ng = cross(dFdx(p), dFdy(p));
+    float ng_len = length(ng);
+    ng = ng_len > 0.0 ? ng / ng_len : n;
+    if (dot(ng, to_eye) < 0.0) ng = -ng;
+
+    vec3 color = u_ambient * base.rgb;
+    float vis[8] = float[8](1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0);
+#if NUM_LIGHTS > 0
+    for (int i = 0; i < NUM_LIGHTS; ++i) {
+        vec3 l = -u_light_direction[i];
+        float atten = 1.0;
+#if HAS_POSITIONAL
+        if (u_light_type[i] != LIGHT_DIRECTIONAL) {
+            vec3 d = u_light_position[i] - p;
+            float dist = length(d);
+            l = d / max(dist, 1e-30);
+            float r = u_light_range[i];
+            if (r > 0.0) {
+                float x = clamp(1.0 - pow(dist / r, 4.0), 0.0, 1.0);
+                atten = x * x;
+            }
+#if HAS_SPOT
+            if (u_light_type[i] == LIGHT_SPOT) {
+                atten *= smoothstep(u_light_cone[i].x, u_light_cone[i].y,
+                                    dot(-l, u_light_direction[i]));
+            }
+#endif
+        }
+#endif
+        float shadow = 1.0;
+#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
+        int m = u_light_map[i];
+        if (m != -1 && u_receive_shadow != 0) {
+            // The side of the surface that faces this light, for the normal offset and the slope.
+            vec3 ngl = dot(ng, l) < 0.0 ? -ng : ng;
+            float cos_l = max(dot(ngl, l), 1e-4);
+            float tan_l = sqrt(max(1.0 - cos_l * cos_l, 0.0)) / cos_l;
+#if NUM_MAPS_2D > 0
+            if (m >= 0) shadow = visibility_2d(m, p, ngl, cos_l, tan_l);
+#endif
+#if NUM_MAPS_CUBE > 0
+            if (m <= -2) shadow = visibility_cube(-m - 2, p, ngl, cos_l, tan_l);
+#endif
+        }
+#endif
+        vis[i] = shadow;
+        float diffuse = max(dot(n, l), 0.0);
+        vec3 h = normalize(l + to_eye);
+        float spec = diffuse > 0.0 ? u_specular * pow(max(dot(n, h), 0.0), u_shininess) : 0.0;
+        color += shadow * atten * u_light_radiance[i] * (diffuse * base.rgb + spec);
+    }
+#endif
+    o_color = vec4(linear_to_srgb(color), base.a);
+#if OUT_VISIBILITY > 0
+    o_visibility0 = vec4(vis[0], vis[1], vis[2], vis[3]);
+#endif
+#if OUT_VISIBILITY > 1
+    o_visibility1 = vec4(vis[4], vis[5], vis[6], vis[7]);
+#endif
+}

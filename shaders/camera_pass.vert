@@ -1,0 +1,36 @@
+#version 410 core
+// Camera pass: world position (relative to the scene's origin), normal, and the optional
+// texture coordinates and vertex colours of the primitive.
+layout(location = 0) in vec3 a_position;
+layout(location = 1) in vec3 a_normal;
+#if HAS_UV
+layout(location = LOC_UV) in vec2 a_uv;
+out vec2 v_uv;
+#endif
+#if HAS_COLOR
+layout(location = LOC_COLOR) in vec4 a_color;
+out vec4 v_color;
+#endif
+layout(location = LOC_MODEL) in mat4 a_model;  // per instance
+
+uniform mat4 u_view_proj;
+
+out vec3 v_world;
+out vec3 v_normal;
+
+void main() {
+    vec4 world = a_model * vec4(a_position, 1.0);
+    v_world = world.xyz;
+    // Cofactor matrix = inverse transpose x determinant: correct under non-uniform scale and
+    // mirroring, without a per-vertex inverse.
+    mat3 m = mat3(a_model);
+    mat3 cof = mat3(cross(m[1], m[2]), cross(m[2], m[0]), cross(m[0], m[1]));
+    v_normal = cof * a_normal;
+#if HAS_UV
+    v_uv = a_uv;
+#endif
+#if HAS_COLOR
+    v_color = a_color;
+#endif
+    gl_Position = u_view_proj * world;
+}

@@ -1,0 +1,37 @@
+#version 410 core
+// Light pass: store the linear light depth t = (depth - near) / (far - near) of the closest
+// caster, packed into colour channels or written to the depth texture.
+in float v_light_depth;
+#if ALPHA_TEST
+in vec2 v_uv;
+uniform sampler2D u_base_texture;
+uniform float u_base_alpha;
+uniform float u_alpha_cutoff;
+#endif
+
+uniform vec2 u_depth_range;  // near, far of the light's frustum
+
+#if POLYGON_OFFSET
+uniform vec2 u_polygon_offset;  // factor (x depth slope), units (x encoding step)
+#endif
+
+#if ENCODING != ENC_DEPTH
+layout(location = 0) out vec4 o_depth;
+#endif
+
+void main() {
+#if ALPHA_TEST
+    if (u_base_alpha * texture(u_base_texture, v_uv).a < u_alpha_cutoff) discard;
+#endif
+    float t = (v_light_depth - u_depth_range.x) / (u_depth_range.y - u_depth_range.x);
+#if POLYGON_OFFSET
+    t += u_polygon_offset.x * max(abs(dFdx(t)), abs(dFdy(t))) + u_polygon_offset.y * ENC_STEP;
+#endif
+#if WRITE_DEPTH
+    // Perspective lights: test and store linear depth rather than the hyperbolic window depth.
+    gl_FragDepth = clamp(t, 0.0, 1.0);
+#endif
+#if ENCODING != ENC_DEPTH
+    o_depth = encode_depth(t);
+#endif
+}
