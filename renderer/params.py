@@ -130,7 +130,9 @@ class ShadowParams(_Model):
 
     encoding: Encoding = "rgba8"
     map_size: int | Literal["auto"] = Field(
-        default=2048, description="texels per side (power of two), or 'auto'"
+        default="auto",
+        description="texels per side (power of two), or 'auto': the smallest power of two whose "
+        "texel covers at most half a camera pixel on the visible receivers",
     )
     max_map_size: int = Field(default=4096, ge=16, le=16384)
     filter: Literal["hard", "pcf"] = "pcf"
@@ -184,6 +186,6 @@ EXAMPLE_PARAMS: dict = {
     "height": 480,
     "camera": {"eye": [3, 2.5, 4], "target": [0, 0.5, 0], "yfov_deg": 45},
     "lights": [{"type": "directional", "direction": [-0.4, -1.0, -0.3], "intensity": 1.0}],
-    "shadows": {"encoding": "rgba8", "map_size": 2048, "filter": "pcf", "pcf_kernel": 3},
+    "shadows": {"encoding": "rgba8", "map_size": "auto", "filter": "pcf", "pcf_kernel": 3},
     "outputs": ["color", "light_depth", "visibility"],
 }

@@ -28,6 +28,9 @@ from .scene import Scene
 # would spend most of its texels near the frustum's edges.
 MAX_SPOT_HALF_ANGLE = math.radians(60.0)
 MIN_AUTO_MAP = 256
+# With map_size "auto", one texel covers at most this many camera pixels on the visible receivers:
+# half a pixel, so that an edge is sampled at least twice per pixel.
+AUTO_TEXEL_PIXELS = 0.5
 
 # GL cube-map faces: (forward, up) in the order +X, -X, +Y, -Y, +Z, -Z.
 CUBE_FACES = (
@@ -213,7 +216,7 @@ class _Ctx:
         fc = camera.frustum_corners() - origin
         self.frustum_corners = fc
         # World size of one camera pixel at unit distance, for automatic map sizes.
-        self.pixel_per_distance = 2 * math.tan(camera.yfov / 2) / camera.height
+        self.pixel_per_distance = 2 * math.tan(camera.yfov / 2) / camera.height * AUTO_TEXEL_PIXELS
         shadow = params.shadows
         self.max_size = shadow.max_map_size
         self.margin_texels = (shadow.pcf_kernel // 2 if shadow.filter == "pcf" else 0) + 2
@@ -317,13 +320,19 @@ def _plan_directional(ctx: _Ctx, lp: LightPlan) -> None:
     if x1 <= x0 or y1 <= y0:
         x0, y0 = r_lo[:2]
         x1, y1 = r_hi[:2]
-    # Receiver depth range: light depth is -z.
-    rec_far = float(-r_lo[2])
+    # Receiver depth range (light depth is -z), no deeper than the camera can see.
+    rec_far = float(min(-r_lo[2], -f.min(axis=0)[2]))
     in_frustum = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
     depth_min = -hi[:, 2]
     casters = _select_casters(ctx, lp, in_frustum, depth_min, rec_far)
     fit = ctx.cast & in_frustum & (depth_min <= rec_far)
     if not fit.any():
+        lp.reason = "no_caster_in_frustum"
+        return
+    # A directional shadow falls straight along the light: only where casters are, laterally.
+    x0, y0 = np.maximum([x0, y0], lo[fit, :2].min(axis=0))
+    x1, y1 = np.minimum([x1, y1], hi[fit, :2].max(axis=0))
+    if x1 <= x0 or y1 <= y0:
         lp.reason = "no_caster_in_frustum"
         return
     near = float(depth_min[fit].min())
@@ -382,6 +391,15 @@ def _plan_spot(ctx: _Ctx, lp: LightPlan) -> None:
     if not fit.any():
         lp.reason = "no_caster_in_frustum"
         return
+    # Shadows lie within the casters' angular extent, when all of them are in front of the light.
+    cc = lc[fit].reshape(-1, 3)
+    if np.all(-cc[:, 2] > 0):
+        ang = cc[:, :2] / (-cc[:, 2:3])
+        a_lo = np.maximum(a_lo, ang.min(axis=0))
+        a_hi = np.minimum(a_hi, ang.max(axis=0))
+        if np.any(a_hi <= a_lo):
+            lp.reason = "no_caster_in_frustum"
+            return
     far = rec_far * 1.001
     near = float(max(depth_min[fit].min() * 0.999, far * 1e-5))
     extent = float(max(a_hi[0] - a_lo[0], a_hi[1] - a_lo[1]))

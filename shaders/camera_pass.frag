@@ -152,7 +152,13 @@ void main() {
     base *= v_color;
 #endif
 #if ALPHA_MASK
-    if (base.a < u_alpha_cutoff) discard;
+#if HAS_UV
+    // The cut-out is tested at full resolution so its outline does not erode with distance.
+    float coverage = base.a / max(tex.a, 1e-6) * textureLod(u_base_texture, v_uv, 0.0).a;
+#else
+    float coverage = base.a;
+#endif
+    if (coverage < u_alpha_cutoff) discard;
 #endif
     vec3 p = v_world;
     vec3 to_eye = normalize(u_camera_position - p);

@@ -21,7 +21,8 @@ layout(location = 0) out vec4 o_depth;
 
 void main() {
 #if ALPHA_TEST
-    if (u_base_alpha * texture(u_base_texture, v_uv).a < u_alpha_cutoff) discard;
+    // Level 0: mipmaps would average thin cut-out features away at the light's texel rate.
+    if (u_base_alpha * textureLod(u_base_texture, v_uv, 0.0).a < u_alpha_cutoff) discard;
 #endif
     float t = (v_light_depth - u_depth_range.x) / (u_depth_range.y - u_depth_range.x);
 #if POLYGON_OFFSET
