@@ -60,7 +60,9 @@ def decode(rgba: np.ndarray, encoding: str) -> np.ndarray:
     if encoding == "rgb8":
         return c[..., 0] / 2.0**24 + c[..., 1] / 2.0**16 + c[..., 2] / 2.0**8
     if encoding == "rgba8":
-        return c[..., 0] / 2.0**8 + c[..., 1] / 2.0**16 + c[..., 2] / 2.0**24 + c[..., 3] / 2.0**32
+        # Big-endian uint32 view of the four bytes: one pass instead of four.
+        words = np.ascontiguousarray(rgba, dtype=np.uint8).view(">u4")[..., 0]
+        return words / 2.0**32
     raise ValueError(f"{encoding!r} has no colour packing")
 
 

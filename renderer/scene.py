@@ -453,10 +453,16 @@ def _primitive_from_trimesh(mesh, name: str) -> Primitive:
         colors = None
     if colors is not None and np.allclose(colors, 1.0):
         colors = None  # all-white vertex colours change nothing: leave the path out
-    normals = _vertex_normals(verts, faces)
+    normals = None
+    if "vertex_normals" in mesh._cache:  # the file's NORMAL attribute, as trimesh loaded it
+        normals = np.asarray(mesh.vertex_normals, np.float64)
+        if normals.shape != verts.shape or not np.all(np.isfinite(normals)):
+            normals = None
+    if normals is None:
+        normals = _vertex_normals(verts, faces)
     return Primitive(
         positions=verts.astype(np.float32),
-        normals=normals,
+        normals=normals.astype(np.float32),
         indices=faces.astype(np.uint32),
         material=material,
         uv=uv,
