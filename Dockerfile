@@ -26,6 +26,9 @@ RUN apt-get update -qq \
         >/dev/null \
  && rm -rf /var/lib/apt/lists/*
 
+# The user the service and the tests run as.
+RUN useradd --uid 10001 --user-group --create-home --home-dir /home/app --shell /usr/sbin/nologin app
+
 RUN python3 -m venv /opt/venv
 ENV VIRTUAL_ENV=/opt/venv \
     PATH=/opt/venv/bin:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
@@ -48,10 +51,11 @@ RUN pip install -q "/tmp/src[server,test]" \
 #   docker run --rm --init -v /path/to/models:/opt/shared/models:ro \
 #       -w /opt/shadowmap shadowmap-service python -m pytest -q
 # The tests look for models in ../shared/models from /opt/shadowmap, or in $SHADOWMAP_MODELS.
-COPY pyproject.toml /opt/shadowmap/pyproject.toml
-COPY tests /opt/shadowmap/tests
+# Owned by the runtime user, so tests may write beside themselves.
+RUN install -d -o app -g app /opt/shadowmap
+COPY --chown=app:app pyproject.toml /opt/shadowmap/pyproject.toml
+COPY --chown=app:app tests /opt/shadowmap/tests
 
-RUN useradd --uid 10001 --user-group --create-home --home-dir /home/app --shell /usr/sbin/nologin app
 USER app
 WORKDIR /home/app
 

@@ -46,6 +46,8 @@ class GLContext:
                 self._platform = OSMesaPlatform(16, 16)
             self._platform.init_context()
             self._platform.make_current()
+            if self.platform == "egl":
+                GLContext._live_egl += 1
         except Exception as exc:
             raise RenderError(f"cannot create an {self.platform} GL context: {exc}") from exc
         self.renderer = GL.glGetString(GL.GL_RENDERER).decode()
@@ -61,10 +63,26 @@ class GLContext:
         self.check_thread()
         self._platform.make_current()
 
+    _live_egl = 0  # EGL contexts alive in this process, which share one EGLDisplay
+
     def release(self) -> None:
-        if self._platform is not None:
-            self._platform.delete_context()
-            self._platform = None
+        """Destroy the context. Safe to call twice."""
+        if self._platform is None:
+            return
+        platform, self._platform = self._platform, None
+        if self.platform != "egl":
+            platform.delete_context()
+            return
+        # pyrender's delete_context() terminates the EGLDisplay, which every context of the
+        # process shares: terminate it only with the last one.
+        from OpenGL import EGL
+
+        display = platform._egl_display
+        EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+        EGL.eglDestroyContext(display, platform._egl_context)
+        GLContext._live_egl -= 1
+        if GLContext._live_egl == 0:
+            EGL.eglTerminate(display)
 
     def info(self) -> dict:
         return {"platform": self.platform, "renderer": self.renderer, "version": self.version}

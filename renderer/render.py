@@ -112,16 +112,19 @@ class Renderer:
     limits : Limits, optional
     cache_bytes : int
         Upper bound of GPU memory held by cached scene uploads (by content hash); 0 disables.
+    cache_entries : int
+        Upper bound of the number of cached scene uploads.
     """
 
     def __init__(self, platform: str | None = None, *, limits: Limits | None = None,
-                 cache_bytes: int = 256 * 2**20) -> None:
+                 cache_bytes: int = 256 * 2**20, cache_entries: int = 32) -> None:
         self.limits = limits or Limits()
         self.context = GLContext(platform)
         self.programs = ProgramCache()
         self.light_pass = LightPass(self.programs)
         self.camera_pass = CameraPass(self.programs)
         self.cache_bytes = cache_bytes
+        self.cache_entries = cache_entries
         self._uploads: OrderedDict[str, GpuScene] = OrderedDict()
         self._closed = False
 
@@ -160,14 +163,17 @@ class Renderer:
 
         Returns (upload, kept in the cache, cache hit).
         """
-        if self.cache_bytes <= 0 or not scene.key:
+        if self.cache_bytes <= 0 or self.cache_entries <= 0 or not scene.key:
             return GpuScene.upload(scene), False, False
         gs = self._uploads.get(scene.key)
         if gs is not None:
             self._uploads.move_to_end(scene.key)
             return gs, True, True
         gs = self._uploads[scene.key] = GpuScene.upload(scene)
-        while sum(g.nbytes for g in self._uploads.values()) > self.cache_bytes and len(self._uploads) > 1:
+        while len(self._uploads) > 1 and (
+            len(self._uploads) > self.cache_entries
+            or sum(g.nbytes for g in self._uploads.values()) > self.cache_bytes
+        ):
             _, old = self._uploads.popitem(last=False)
             old.release()
         return gs, True, False

@@ -103,10 +103,40 @@ float visibility_2d(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     float span = range.y - range.x;
     float t = (-view.z - range.x) / span;
     float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
-    // The receiver's plane in light view space: depth changes by (n.x dx + n.y dy) / n.z.
+    // Depth of the receiver's plane along a tap moved by one texel (dx, dy) across the map:
+    // orthographic rays change it by (n.x dx + n.y dy) / n.z, perspective rays through the light
+    // by -depth (n.x dx + n.y dy) / (n . p) (both to first order).
     vec3 nl = mat3(u_map2d_view[m]) * ng;
-    vec2 dref = clamp(nl.xy / max(nl.z, 1e-6), -u_bias.z, u_bias.z) * (texel / span);
-    return shadow_2d(u_map2d[m], uv, ref, dref, range.w);
+    vec2 slope = u_map2d_texel[m].y > 0.0
+        ? -depth * nl.xy / min(dot(nl, view.xyz), -1e-30)
+        : nl.xy / max(nl.z, 1e-6);
+    vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
+    // Constant indices only: dynamic indexing of sampler arrays is where drivers differ.
+#if NUM_MAPS_2D > 0
+    if (m == 0) return shadow_2d(u_map2d[0], uv, ref, dref, range.w);
+#endif
+#if NUM_MAPS_2D > 1
+    if (m == 1) return shadow_2d(u_map2d[1], uv, ref, dref, range.w);
+#endif
+#if NUM_MAPS_2D > 2
+    if (m == 2) return shadow_2d(u_map2d[2], uv, ref, dref, range.w);
+#endif
+#if NUM_MAPS_2D > 3
+    if (m == 3) return shadow_2d(u_map2d[3], uv, ref, dref, range.w);
+#endif
+#if NUM_MAPS_2D > 4
+    if (m == 4) return shadow_2d(u_map2d[4], uv, ref, dref, range.w);
+#endif
+#if NUM_MAPS_2D > 5
+    if (m == 5) return shadow_2d(u_map2d[5], uv, ref, dref, range.w);
+#endif
+#if NUM_MAPS_2D > 6
+    if (m == 6) return shadow_2d(u_map2d[6], uv, ref, dref, range.w);
+#endif
+#if NUM_MAPS_2D > 7
+    if (m == 7) return shadow_2d(u_map2d[7], uv, ref, dref, range.w);
+#endif
+    return 1.0;
 }
 #endif
 
@@ -121,24 +151,48 @@ float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     d = q - u_mapcube_position[m];
     a = abs(d);
     depth = max(a.x, max(a.y, a.z));
-    vec3 axis;
+    // The face's two lateral axes.
     vec3 u;
     vec3 v;
     if (a.x >= a.y && a.x >= a.z) {
-        axis = vec3(sign(d.x), 0.0, 0.0); u = vec3(0.0, 1.0, 0.0); v = vec3(0.0, 0.0, 1.0);
+        u = vec3(0.0, 1.0, 0.0); v = vec3(0.0, 0.0, 1.0);
     } else if (a.y >= a.z) {
-        axis = vec3(0.0, sign(d.y), 0.0); u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 0.0, 1.0);
+        u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 0.0, 1.0);
     } else {
-        axis = vec3(0.0, 0.0, sign(d.z)); u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 1.0, 0.0);
+        u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 1.0, 0.0);
     }
     float span = range.y - range.x;
     float t = (depth - range.x) / span;
     float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
-    // Moving by w across the face on the receiver's plane changes the face depth by -(n.w)/(n.a).
-    float na = dot(ng, axis);
-    vec2 slope = -vec2(dot(ng, u), dot(ng, v)) / (abs(na) > 1e-6 ? na : -1e-6);
+    // A tap moved by w across the face meets the receiver's plane at face depth
+    // depth (n . d) / (n . (d + w)): to first order a change of -depth (n . w) / (n . d).
+    vec2 slope = -depth * vec2(dot(ng, u), dot(ng, v)) / min(dot(ng, d), -1e-30);
     vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
-    return shadow_cube(u_mapcube[m], d, ref, dref, u * texel, v * texel);
+#if NUM_MAPS_CUBE > 0
+    if (m == 0) return shadow_cube(u_mapcube[0], d, ref, dref, u * texel, v * texel);
+#endif
+#if NUM_MAPS_CUBE > 1
+    if (m == 1) return shadow_cube(u_mapcube[1], d, ref, dref, u * texel, v * texel);
+#endif
+#if NUM_MAPS_CUBE > 2
+    if (m == 2) return shadow_cube(u_mapcube[2], d, ref, dref, u * texel, v * texel);
+#endif
+#if NUM_MAPS_CUBE > 3
+    if (m == 3) return shadow_cube(u_mapcube[3], d, ref, dref, u * texel, v * texel);
+#endif
+#if NUM_MAPS_CUBE > 4
+    if (m == 4) return shadow_cube(u_mapcube[4], d, ref, dref, u * texel, v * texel);
+#endif
+#if NUM_MAPS_CUBE > 5
+    if (m == 5) return shadow_cube(u_mapcube[5], d, ref, dref, u * texel, v * texel);
+#endif
+#if NUM_MAPS_CUBE > 6
+    if (m == 6) return shadow_cube(u_mapcube[6], d, ref, dref, u * texel, v * texel);
+#endif
+#if NUM_MAPS_CUBE > 7
+    if (m == 7) return shadow_cube(u_mapcube[7], d, ref, dref, u * texel, v * texel);
+#endif
+    return 1.0;
 }
 #endif
 

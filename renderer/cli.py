@@ -1,0 +1,170 @@
+"""The ``shadowmap`` command: ``render`` a scene to files, ``serve`` the HTTP API, ``bench``.
+
+Errors in the input (bad file, bad JSON, impossible values) exit with status 2 and one line on
+stderr; a GL failure exits with status 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+RENDER_HELP = """\
+PARAMS is a JSON file with the request (all fields optional), for example:
+
+{example}
+
+Fields: width, height; camera {{pose 4x4 | eye, target, up; yfov_deg; znear; zfar}} (omitted: the
+file's camera, else framed automatically); lights [{{type directional|spot|point; pose 4x4 |
+position, direction | position, target; color; intensity; inner_cone_deg; outer_cone_deg; range;
+cast_shadows}}] (omitted: the file's KHR_lights_punctual lights, else one default);
+ambient; background; specular; shininess; shadows {{encoding rgba8|rgb8|rg8|r8|depth; map_size
+16..16384 | "auto"; filter hard|pcf; pcf_kernel; bias {{constant; slope; slope_max;
+normal_offset; polygon_offset; quantisation_steps}}}}; outputs [color, light_depth, visibility,
+depth]; alpha; ground; reference; optimize.
+
+Writes to OUT: color.png, light_depth_<i>.png and light_depth_<i>.npy per light,
+visibility.npy (H x W, or H x W x L for several lights), depth.npy, report.json (timings, GL
+renderer, the render plan, and with --reference the error against the ray-traced reference).
+"""
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f"shadowmap: error: {message}", file=sys.stderr)
+    return code
+
+
+def _render(args: argparse.Namespace) -> int:
+    import numpy as np
+    from PIL import Image
+    from pydantic import ValidationError
+
+    from . import Renderer, RenderParams, load_scene
+    from .errors import LimitError, RenderError, ShadowMapError
+    from .scene import directory_resources
+
+    params: dict = {}
+    if args.params:
+        try:
+            params = json.loads(Path(args.params).read_text(), parse_constant=_no_constants)
+        except OSError as exc:
+            return _fail(f"cannot read {args.params}: {exc.strerror}")
+        except ValueError as exc:
+            return _fail(f"{args.params} is not valid JSON: {exc}")
+        if not isinstance(params, dict):
+            return _fail(f"{args.params} must hold a JSON object")
+    for key in ("width", "height"):
+        if getattr(args, key) is not None:
+            params[key] = getattr(args, key)
+    if args.reference:
+        params["reference"] = True
+    if args.outputs:
+        params["outputs"] = args.outputs.split(",")
+    try:
+        request = RenderParams.model_validate(params)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "params"
+        return _fail(f"invalid params: {where}: {first['msg']}")
+    scene_path = Path(args.scene)
+    out = Path(args.out)
+    try:
+        resources = None
+        if scene_path.suffix.lower() == ".gltf":
+            resources = directory_resources(scene_path.parent)
+        scene = load_scene(scene_path, resources=resources)
+        with Renderer() as renderer:
+            result = renderer.render(scene, request)
+    except RenderError as exc:
+        return _fail(str(exc), 3)
+    except (ShadowMapError, LimitError) as exc:
+        return _fail(str(exc))
+    out.mkdir(parents=True, exist_ok=True)
+    if result.color is not None:
+        Image.fromarray(result.color).save(out / "color.png")
+    for ld in result.light_depth:
+        Image.fromarray(ld.image).save(out / f"light_depth_{ld.light}.png")
+        np.save(out / f"light_depth_{ld.light}.npy", ld.depth)
+    if result.visibility is not None:
+        vis = result.visibility
+        np.save(out / "visibility.npy", vis[..., 0] if vis.shape[2] == 1 else vis)
+    if result.depth is not None:
+        np.save(out / "depth.npy", result.depth)
+    report = result.report()
+    report["scene"] = str(scene_path)
+    (out / "report.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+    t = result.timings
+    print(f"rendered {scene_path.name} in {t['total'] * 1000:.1f} ms on {result.info['renderer']} "
+          f"({result.info['platform']}) -> {out}")
+    if result.metrics:
+        for i, m in enumerate(result.metrics):
+            print(f"light {i}: IoU {m['iou']:.4f}, misclassified {m['misclassified_pct']:.3f}%")
+    return 0
+
+
+def _no_constants(name: str):
+    raise ValueError(f"{name} is not allowed (numbers must be finite)")
+
+
+def _jsonable(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from app.main import run
+
+    run(host=args.host, port=args.port, workers=args.workers)
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from bench.error_vs_time import main as bench_main
+
+    return bench_main(args.rest)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .params import EXAMPLE_PARAMS
+
+    parser = argparse.ArgumentParser(prog="shadowmap", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    r = sub.add_parser(
+        "render",
+        help="render a glTF scene to files",
+        description="Render SCENE (.glb or .gltf; a .gltf's external files are read from its "
+        "folder) with shadows.",
+        epilog=RENDER_HELP.format(example=json.dumps(EXAMPLE_PARAMS, indent=2)),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    r.add_argument("scene")
+    r.add_argument("--params", metavar="PARAMS.json", help="request as JSON (see below)")
+    r.add_argument("--width", type=int)
+    r.add_argument("--height", type=int)
+    r.add_argument("--outputs", help="comma-separated: color,light_depth,visibility,depth")
+    r.add_argument("--reference", action="store_true",
+                   help="also measure the error against the ray-traced reference")
+    r.add_argument("--out", default="out", help="output folder (default: ./out)")
+    r.set_defaults(func=_render)
+    s = sub.add_parser("serve", help="run the HTTP service")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.add_argument("--workers", type=int, default=1, help="worker processes (one GL context each)")
+    s.set_defaults(func=_serve)
+    b = sub.add_parser("bench", help="error against run time sweep (see bench/error_vs_time.py)",
+                       add_help=False)
+    b.add_argument("rest", nargs=argparse.REMAINDER)
+    b.set_defaults(func=_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,12 @@
+#version 410 core
+// Probe of shadow_lookup.glsl: one output pixel per query. Each query texel holds
+// (u, v, ref, unused); the result is shadow_2d() against the bound map.
+uniform MAP2D u_map;
+uniform sampler2D u_queries;
+uniform float u_map_size;
+layout(location = 0) out vec4 o_value;
+
+void main() {
+    vec4 q = texelFetch(u_queries, ivec2(gl_FragCoord.xy), 0);
+    o_value = vec4(shadow_2d(u_map, q.xy, q.z, vec2(0.0), u_map_size), 0.0, 0.0, 1.0);
+}

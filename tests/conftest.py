@@ -1,0 +1,45 @@
+"""Shared fixtures: the test models, one GL renderer per session, ray-traced references."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def models_dir() -> Path:
+    """The glTF test scenes: $SHADOWMAP_MODELS, else ../shared/models beside the checkout."""
+    env = os.environ.get("SHADOWMAP_MODELS")
+    path = Path(env) if env else ROOT.parent / "shared" / "models"
+    if not (path / "Duck.glb").is_file():
+        raise RuntimeError(f"test models not found in {path}: set SHADOWMAP_MODELS")
+    return path
+
+
+@pytest.fixture(scope="session")
+def models() -> Path:
+    return models_dir()
+
+
+@pytest.fixture(scope="session")
+def renderer():
+    """One GL context for the whole session (a GL context belongs to one thread)."""
+    from renderer import Renderer
+
+    r = Renderer()
+    yield r
+    r.close()
+
+
+def load_model(models: Path, name: str, ground: bool = True):
+    from renderer import load_scene
+
+    path = models / name
+    resources = None
+    if name.endswith(".gltf"):
+        resources = {p.name: p.read_bytes() for p in models.iterdir() if p.suffix == ".bin"}
+    scene = load_scene(path, resources=resources)
+    return scene.with_ground() if ground else scene

@@ -1,0 +1,109 @@
+"""Small GL programs that run one shader library function per pixel (see shaders/*_probe.frag)."""
+
+from __future__ import annotations
+
+import numpy as np
+from OpenGL import GL
+
+from renderer import encodings
+from renderer.gpu import Framebuffer
+
+PROBE_VERT = ("fullscreen.vert",)
+
+
+def _texture(data: np.ndarray, internal, fmt, typ, compare=False) -> int:
+    h, w = data.shape[:2]
+    tex = GL.glGenTextures(1)
+    GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+    GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+    # Row 0 of the array is texel row 0 (v = 0): the probes address texels, not pictures.
+    GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, internal, w, h, 0, fmt, typ, np.ascontiguousarray(data))
+    for p in (GL.GL_TEXTURE_MIN_FILTER, GL.GL_TEXTURE_MAG_FILTER):
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_NEAREST)
+    for p in (GL.GL_TEXTURE_WRAP_S, GL.GL_TEXTURE_WRAP_T):
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_CLAMP_TO_EDGE)
+    if compare:
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_MODE, GL.GL_COMPARE_REF_TO_TEXTURE)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_FUNC, GL.GL_LEQUAL)
+    return tex
+
+
+def _run(renderer, frag, defines, inputs: dict[str, int], w, h, target, uniforms=None):
+    """Draw the probe into a w x h target; returns the read-back array with row 0 = texel row 0."""
+    renderer.context.make_current()
+    prog = renderer.programs.get(PROBE_VERT, frag, defines)
+    internal, fmt, typ, channels, dtype = target
+    fb = Framebuffer(w, h, [(internal, fmt, typ)], None)
+    vao = GL.glGenVertexArrays(1)
+    try:
+        fb.bind()
+        prog.use()
+        for unit, (name, tex) in enumerate(inputs.items()):
+            GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
+            GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+            prog.set(name, unit)
+        for name, value in (uniforms or {}).items():
+            prog.set(name, value)
+        GL.glDisable(GL.GL_DEPTH_TEST)
+        GL.glDisable(GL.GL_BLEND)
+        GL.glBindVertexArray(vao)
+        GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
+        GL.glBindVertexArray(0)
+        out = fb.read_color(0, fmt, typ, channels, dtype)[::-1]  # undo the picture flip
+        return np.array(out)
+    finally:
+        GL.glDeleteVertexArrays(1, [vao])
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        fb.release()
+
+
+def gpu_encode(renderer, t: np.ndarray, encoding: str) -> np.ndarray:
+    """Bytes the GLSL encoder stores for depths ``t`` (H, W) -> (H, W, 4) uint8."""
+    h, w = t.shape
+    tex = _texture(t.astype(np.float32), GL.GL_R32F, GL.GL_RED, GL.GL_FLOAT)
+    try:
+        return _run(renderer, ("depth_encoding.glsl", "encoding_probe.frag"),
+                    {"ENCODING": encodings.ENCODING_ID[encoding], "ENCODE": 1},
+                    {"u_input": tex}, w, h,
+                    (GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8))
+    finally:
+        GL.glDeleteTextures([tex])
+
+
+def gpu_decode(renderer, rgba: np.ndarray, encoding: str) -> np.ndarray:
+    """Depth the GLSL decoder reads from stored bytes (H, W, 4) uint8 -> (H, W) float32."""
+    h, w = rgba.shape[:2]
+    tex = _texture(rgba.astype(np.uint8), GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)
+    try:
+        out = _run(renderer, ("depth_encoding.glsl", "encoding_probe.frag"),
+                   {"ENCODING": encodings.ENCODING_ID[encoding], "ENCODE": 0},
+                   {"u_input": tex}, w, h,
+                   (GL.GL_R32F, GL.GL_RED, GL.GL_FLOAT, 1, np.float32))
+        return out[..., 0]
+    finally:
+        GL.glDeleteTextures([tex])
+
+
+def gpu_compare(renderer, depth_map: np.ndarray, queries: np.ndarray, encoding: str,
+                pcf_radius: int = 0) -> np.ndarray:
+    """shadow_2d() for each query (u, v, ref) against a depth map (S, S) of linear depths."""
+    s = depth_map.shape[0]
+    if encoding == "depth":
+        map_tex = _texture(depth_map.astype(np.float32), GL.GL_DEPTH_COMPONENT32F,
+                           GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, compare=True)
+    else:
+        map_tex = _texture(encodings.encode(depth_map, encoding), GL.GL_RGBA8, GL.GL_RGBA,
+                           GL.GL_UNSIGNED_BYTE)
+    q = np.zeros((1, len(queries), 4), np.float32)
+    q[0, :, :3] = queries
+    q_tex = _texture(q, GL.GL_RGBA32F, GL.GL_RGBA, GL.GL_FLOAT)
+    try:
+        defines = {"ENCODING": encodings.ENCODING_ID[encoding], "FILTER_PCF": int(pcf_radius > 0),
+                   "PCF_RADIUS": pcf_radius}
+        out = _run(renderer, ("depth_encoding.glsl", "shadow_lookup.glsl", "compare_probe.frag"),
+                   defines, {"u_map": map_tex, "u_queries": q_tex}, len(queries), 1,
+                   (GL.GL_R32F, GL.GL_RED, GL.GL_FLOAT, 1, np.float32),
+                   uniforms={"u_map_size": float(s)} if pcf_radius else None)
+        return out[0, :, 0]
+    finally:
+        GL.glDeleteTextures([map_tex, q_tex])

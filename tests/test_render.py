@@ -1,0 +1,184 @@
+"""End-to-end renders of real glTF scenes, checked against ray-traced hard-shadow truth."""
+
+from __future__ import annotations
+
+import gc
+import resource
+import threading
+
+import numpy as np
+import pytest
+
+from conftest import load_model
+from renderer import RenderError, RenderParams, load_scene
+from renderer.camera import resolve_camera
+from renderer.demo import demo_glb
+from renderer.lights import resolve_lights
+from renderer.metrics import shadow_metrics
+from renderer.reference import trace_reference
+
+pytestmark = pytest.mark.gl
+
+MODELS = [
+    "AlphaBlendModeTest.glb",
+    "BoxTextured.glb",
+    "CesiumMilkTruck.glb",
+    "Duck.glb",
+    "TestScene.gltf",
+    "cube.glb",
+]
+
+
+def measure(renderer, scene, params: RenderParams):
+    """Render visibility and compare every light with the reference; returns (metrics, result)."""
+    params = params.model_copy(update={"outputs": sorted(set(params.outputs) | {"visibility"})})
+    result = renderer.render(scene, params)
+    camera = resolve_camera(params.camera, scene, params.width, params.height)
+    lights = resolve_lights(params.lights, scene)
+    ref = trace_reference(scene, camera, lights)
+    metrics = [
+        shadow_metrics(result.visibility[..., i], ref.visibility[..., i], ref.valid[..., i])
+        for i in range(len(lights))
+    ]
+    return metrics, result, ref
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_shadow_mask_matches_reference_on_real_models(renderer, models, name):
+    scene = load_model(models, name)
+    metrics, result, _ = measure(renderer, scene, RenderParams())
+    m = metrics[0]
+    assert m.pixels > 10_000
+    assert m.iou >= 0.95, (name, m)
+    assert result.plan["lights"][0]["shadow_map"] == "ortho"
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return load_scene(demo_glb())
+
+
+DEMO_CAMERA = {"eye": [3.5, 3.0, 5.0], "target": [0.0, 0.4, 0.0]}
+
+
+@pytest.mark.parametrize(
+    "light, kind",
+    [
+        ({"type": "directional", "direction": [-0.6, -1.0, 0.25]}, "ortho"),
+        ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 40}, "perspective"),
+        ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 80}, "cube"),
+        ({"type": "point", "position": [-1.5, 2.5, 2.0]}, "cube"),
+    ],
+)
+def test_each_light_type_matches_reference(renderer, demo, light, kind):
+    params = RenderParams(camera=DEMO_CAMERA, lights=[light])
+    metrics, result, _ = measure(renderer, demo, params)
+    assert result.plan["lights"][0]["shadow_map"] == kind
+    assert metrics[0].iou >= 0.95, metrics[0]
+    assert metrics[0].false_shadow_pct < 0.1
+
+
+def test_several_lights_have_one_map_and_one_visibility_each(renderer, demo):
+    lights = [
+        {"type": "directional", "direction": [-0.6, -1.0, 0.25]},
+        {"type": "point", "position": [1.5, 2.5, 2.0], "intensity": 0.5},
+        {"type": "spot", "position": [0, 4, 0], "direction": [0, -1, 0], "outer_cone_deg": 35},
+    ]
+    params = RenderParams(camera=DEMO_CAMERA, lights=lights, outputs=["color", "light_depth"])
+    metrics, result, _ = measure(renderer, demo, params)
+    assert result.visibility.shape == (480, 640, 3)
+    assert [ld.kind for ld in result.light_depth] == ["ortho", "cube", "perspective"]
+    for m in metrics:
+        assert m.iou >= 0.95, m
+
+
+def test_outputs_are_only_what_was_asked_for(renderer, demo):
+    r = renderer.render(demo, RenderParams(outputs=["color"]))
+    assert r.color.shape == (480, 640, 3) and r.color.dtype == np.uint8
+    assert r.visibility is None and r.depth is None and r.light_depth == []
+    r = renderer.render(demo, RenderParams(outputs=["depth"], alpha=True))
+    assert r.color is None and r.depth.shape == (480, 640)
+
+
+def test_visibility_is_nan_where_no_geometry_and_depth_matches_reference(renderer, models):
+    scene = load_model(models, "Duck.glb", ground=False)
+    params = RenderParams(outputs=["visibility", "depth"])
+    _, result, ref = measure(renderer, scene, params)
+    vis = result.visibility[..., 0]
+    geometry = np.isfinite(ref.depth)
+    # Pixels on silhouettes may differ by one; everything else agrees on where geometry is.
+    assert np.mean(np.isfinite(vis) == geometry) > 0.995
+    both = geometry & np.isfinite(result.depth)
+    rel = np.abs(result.depth[both] - ref.depth[both]) / ref.depth[both]
+    assert np.median(rel) < 1e-3
+
+
+def test_light_depth_debug_image(renderer, demo):
+    r = renderer.render(demo, RenderParams(camera=DEMO_CAMERA, outputs=["light_depth"]))
+    (ld,) = r.light_depth
+    assert ld.image.dtype == np.uint8 and ld.image.shape == ld.depth.shape
+    drawn = np.isfinite(ld.depth)
+    assert drawn.any() and (~drawn).any()
+    assert np.all(ld.image[~drawn] == 255)  # nothing drawn: white
+    assert np.nanmin(ld.depth) >= 0 and np.nanmax(ld.depth) <= 1
+    # Near is dark: the darkest pixel holds the smallest depth.
+    darkest = ld.depth.flat[np.argmin(np.where(drawn, ld.image, 255))]
+    assert darkest - np.nanmin(ld.depth) <= 1 / 254
+
+
+def test_timings_cover_every_stage(renderer, demo):
+    r = renderer.render(demo, RenderParams())
+    for stage in ("load", "upload", "plan", "light", "camera", "readback", "total"):
+        assert r.timings[stage] >= 0
+    assert r.info["platform"] in ("egl", "osmesa")
+
+
+def test_close_is_idempotent_and_final():
+    from renderer import Renderer
+
+    r = Renderer()
+    r.close()
+    r.close()
+    with pytest.raises(RenderError, match="closed"):
+        r.render(load_scene(demo_glb()))
+
+
+def test_context_refuses_other_threads(renderer, demo):
+    errors = []
+
+    def work():
+        try:
+            renderer.render(demo, RenderParams(width=32, height=32))
+        except RenderError as exc:
+            errors.append(exc)
+
+    t = threading.Thread(target=work)
+    t.start()
+    t.join()
+    assert errors and "thread" in str(errors[0])
+
+
+def test_500_renders_do_not_grow_memory(renderer):
+    import trimesh
+
+    from renderer.scene import scene_from_meshes
+
+    def scene(i):
+        box = trimesh.creation.box(extents=(1, 1 + i * 1e-3, 1))
+        ground = trimesh.creation.box(extents=(5, 0.1, 5))
+        ground.apply_translation((0, -0.6, 0))
+        return scene_from_meshes([box, ground])
+
+    params = RenderParams(width=64, height=48, outputs=["color", "visibility", "light_depth"])
+    for i in range(50):  # warm-up: programs, pools, caches
+        renderer.render(scene(i), params)
+    gc.collect()
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    for i in range(50, 550):
+        renderer.render(scene(i), params)
+    gc.collect()
+    grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+    assert grown_mb < 40, f"RSS grew by {grown_mb:.1f} MB over 500 renders"
+    assert len(renderer._uploads) <= renderer.cache_entries
+    assert sum(g.nbytes for g in renderer._uploads.values()) <= renderer.cache_bytes
+    assert sum(len(v) for v in renderer.light_pass.pool.values()) <= renderer.light_pass.pool_size
