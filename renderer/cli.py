@@ -1,4 +1,4 @@
-"""The ``shadowmap`` command: ``render`` a scene to files, ``serve`` the HTTP API, ``bench``.
+"""The ``shadowmap`` command: ``render`` a scene to files, ``serve`` the HTTP API.
 
 Errors in the input (bad file, bad JSON, impossible values) exit with status 2 and one line on
 stderr; a GL failure exits with status 3.
@@ -121,12 +121,6 @@ def _serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def _bench(args: argparse.Namespace) -> int:
-    from bench.error_vs_time import main as bench_main
-
-    return bench_main(args.rest)
-
-
 def build_parser() -> argparse.ArgumentParser:
     from .params import EXAMPLE_PARAMS
 
@@ -154,10 +148,6 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--port", type=int, default=8000)
     s.add_argument("--workers", type=int, default=1, help="worker processes (one GL context each)")
     s.set_defaults(func=_serve)
-    b = sub.add_parser("bench", help="error against run time sweep (see bench/error_vs_time.py)",
-                       add_help=False)
-    b.add_argument("rest", nargs=argparse.REMAINDER)
-    b.set_defaults(func=_bench)
     return parser
 
 

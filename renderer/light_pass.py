@@ -154,7 +154,9 @@ class LightPass:
             prog.use()
             prog.set("u_light_view", view)
             prog.set("u_light_proj", lp.proj)
-            prog.set("u_depth_range", (lp.near, lp.far))
+            if shadows.encoding != "depth" or defines["WRITE_DEPTH"]:
+                # (an orthographic depth-texture map stores the window depth as it is)
+                prog.set("u_depth_range", (lp.near, lp.far))
             if polygon_offset:
                 prog.set("u_polygon_offset", (po_factor, po_units))
             if alpha_test:

@@ -1,0 +1,190 @@
+"""Scenes and measurements shared by the tests and the benchmarks.
+
+- :func:`measure`: render a scene's visibility and compare every light with the ray-traced
+  reference (needs ``embreex``).
+- Scene builders for stiff and extreme cases: a caster over a ground plane at any scale and
+  offset, grazing light, thin sheets, contact, a room for point lights, many small objects.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import resolve_camera
+from .lights import resolve_lights
+from .params import RenderParams
+from .scene import Instance, Material, Scene, _world_bounds, scene_from_meshes
+
+
+@dataclass
+class Measurement:
+    """One render compared with the reference.
+
+    metrics : list of ShadowMetrics, one per light; result : RenderResult; reference :
+    ReferenceResult; seconds : wall time of the render call.
+    """
+
+    metrics: list
+    result: object
+    reference: object
+    seconds: float
+
+
+def measure(renderer, scene: Scene, params: RenderParams | dict | None = None) -> Measurement:
+    """Render visibility with ``params`` and compare each light with the ray-traced reference."""
+    from .metrics import shadow_metrics
+    from .reference import trace_reference
+
+    if not isinstance(params, RenderParams):
+        params = RenderParams.model_validate(params or {})
+    params = params.model_copy(update={"outputs": sorted(set(params.outputs) | {"visibility"})})
+    t = time.perf_counter()
+    result = renderer.render(scene, params)
+    seconds = time.perf_counter() - t
+    camera = resolve_camera(params.camera, scene, params.width, params.height)
+    lights = resolve_lights(params.lights, scene)
+    ref = trace_reference(scene, camera, lights)
+    metrics = [
+        shadow_metrics(result.visibility[..., i], ref.visibility[..., i], ref.valid[..., i])
+        for i in range(len(lights))
+    ]
+    return Measurement(metrics, result, ref, seconds)
+
+
+def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0)) -> Scene:
+    """The same scene scaled about the origin and then translated (in float64 node matrices)."""
+    m = np.diag([scale, scale, scale, 1.0])
+    m[:3, 3] = offset
+    instances = [
+        Instance(
+            inst.primitive,
+            m @ inst.matrix,
+            inst.cast_shadow,
+            inst.receive_shadow,
+            inst.name,
+            _world_bounds(scene.primitives[inst.primitive].local_bounds.astype(np.float64),
+                          m @ inst.matrix),
+        )
+        for inst in scene.instances
+    ]
+    focus = None if scene.focus is None else scene.focus * scale + np.asarray(offset)
+    return Scene(scene.primitives, instances, scene.cameras, scene.lights,
+                 key=f"{scene.key}:{scale!r}:{tuple(offset)!r}", focus=focus)
+
+
+def _box(extents, centre, **meta):
+    import trimesh
+
+    mesh = trimesh.creation.box(extents=extents)
+    mesh.apply_translation(centre)
+    mesh.metadata.update(meta)
+    return mesh
+
+
+def _plane(size: float, y: float = 0.0, **meta):
+    import trimesh
+
+    h = size / 2
+    mesh = trimesh.Trimesh(
+        vertices=[[-h, y, -h], [h, y, -h], [h, y, h], [-h, y, h]],
+        faces=[[0, 2, 1], [0, 3, 2]],
+        process=False,
+    )
+    mesh.metadata.update(meta)
+    return mesh
+
+
+def caster_on_ground() -> Scene:
+    """A unit box floating 0.5 above a 6 x 6 ground plane, plus a post touching the ground."""
+    return scene_from_meshes(
+        [_plane(6.0), _box((1, 1, 1), (0, 1.0, 0)), _box((0.3, 1.2, 0.3), (1.6, 0.6, 0.8))],
+        ["ground", "box", "post"],
+    )
+
+
+def grazing_plane() -> Scene:
+    """A large flat ground and a low wall: acne shows on the ground under grazing light."""
+    return scene_from_meshes(
+        [_plane(20.0), _box((4, 0.5, 0.2), (0, 0.25, -2))], ["ground", "wall"]
+    )
+
+
+def room() -> Scene:
+    """A closed 8 x 4 x 8 room (inward walls) with a box and a pillar, for point lights inside."""
+    import trimesh
+
+    shell = trimesh.creation.box(extents=(8, 4, 8))
+    shell.invert()  # faces point inwards
+    shell.apply_translation((0, 2, 0))
+    return scene_from_meshes(
+        [shell, _box((1, 1, 1), (1.5, 0.5, 1.0)), _box((0.4, 3.0, 0.4), (-1.5, 1.5, -1.0))],
+        ["room", "box", "pillar"],
+    )
+
+
+def thin_sheets() -> Scene:
+    """Two-sided zero-thickness sheets (a roof and a tilted panel) above the ground."""
+    import trimesh
+
+    roof = _plane(1.5, 1.2)
+    panel = trimesh.Trimesh(
+        vertices=[[1.0, 0.3, -0.5], [2.0, 0.3, -0.5], [2.0, 1.3, 0.2], [1.0, 1.3, 0.2]],
+        faces=[[0, 1, 2], [0, 2, 3]],
+        process=False,
+    )
+    scene = scene_from_meshes([_plane(8.0), roof, panel], ["ground", "roof", "panel"])
+    for prim in scene.primitives[1:]:
+        prim.material = Material(prim.material.base_color, double_sided=True)
+    return scene
+
+
+def degenerate_geometry() -> Scene:
+    """Zero-area triangles, duplicated vertices and a lone triangle over a ground plane."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    box.apply_translation((0, 1.0, 0))
+    v = np.vstack([box.vertices, box.vertices[:3]])  # duplicated vertices
+    f = np.vstack([box.faces, [[0, 0, 1], [8, 9, 10], [2, 2, 2]]])  # zero-area and duplicates
+    messy = trimesh.Trimesh(vertices=v, faces=f, process=False)
+    lone = trimesh.Trimesh(vertices=[[1.2, 0.8, 0.5], [2.2, 0.8, 0.5], [1.7, 0.8, -0.5]],
+                           faces=[[0, 1, 2]], process=False)
+    scene = scene_from_meshes([_plane(6.0), messy, lone], ["ground", "messy", "lone"])
+    scene.primitives[2].material = Material(scene.primitives[2].material.base_color,
+                                            double_sided=True)
+    return scene
+
+
+def many_small_objects(n: int = 200, seed: int = 3) -> Scene:
+    """A box over a ground plane, plus ``n`` small boxes far outside the default view."""
+    rng = np.random.default_rng(seed)
+    meshes = [_plane(6.0), _box((1, 1, 1), (0, 1.0, 0))]
+    for _ in range(n):
+        c = rng.uniform(-1, 1, 3)
+        c = c / np.linalg.norm(c) * rng.uniform(60, 90)
+        meshes.append(_box((0.3, 0.3, 0.3), c))
+    return scene_from_meshes(meshes, ["ground", "box"] + [f"far_{i}" for i in range(n)])
+
+
+def ground_only_receives() -> Scene:
+    """The caster-on-ground scene with ``castShadow = false`` on the ground (three.js extras)."""
+    scene = caster_on_ground()
+    scene.instances[0].cast_shadow = False
+    return scene
+
+
+__all__ = [
+    "Measurement",
+    "caster_on_ground",
+    "degenerate_geometry",
+    "grazing_plane",
+    "ground_only_receives",
+    "many_small_objects",
+    "measure",
+    "room",
+    "thin_sheets",
+    "transformed",
+]
