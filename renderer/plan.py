@@ -153,10 +153,20 @@ def frustum_planes(view_proj: np.ndarray) -> np.ndarray:
     return planes / np.maximum(norms, 1e-300)
 
 
-def boxes_in_frustum(corners: np.ndarray, planes: np.ndarray) -> np.ndarray:
-    """Conservative test of boxes (N, 8, 3) against planes (P, 4): False only when surely outside."""
+def boxes_in_frustum(corners: np.ndarray, planes: np.ndarray,
+                     frustum_corners: np.ndarray | None = None) -> np.ndarray:
+    """Conservative test of boxes (N, 8, 3) against planes (P, 4): False only when surely outside.
+
+    With the frustum's own corners (8, 3), boxes that lie wholly beyond the frustum along a world
+    axis are rejected too (the plane test alone keeps large boxes near the frustum's corners).
+    """
     d = corners @ planes[:, :3].T + planes[:, 3]  # (N, 8, P)
-    return ~np.any(np.all(d < 0, axis=1), axis=1)
+    inside = ~np.any(np.all(d < 0, axis=1), axis=1)
+    if frustum_corners is not None:
+        lo, hi = corners.min(axis=1), corners.max(axis=1)  # (N, 3)
+        f_lo, f_hi = frustum_corners.min(axis=0), frustum_corners.max(axis=0)
+        inside &= np.all((hi >= f_lo) & (lo <= f_hi), axis=1)
+    return inside
 
 
 def ortho(left, right, bottom, top, near, far) -> np.ndarray:
@@ -212,9 +222,9 @@ class _Ctx:
         self.cam_view = np.linalg.inv(cam_pose)
         self.cam_pos = cam_pose[:3, 3]
         vp = camera.projection @ self.cam_view
-        self.in_view = boxes_in_frustum(self.corners, frustum_planes(vp))
         fc = camera.frustum_corners() - origin
         self.frustum_corners = fc
+        self.in_view = boxes_in_frustum(self.corners, frustum_planes(vp), fc)
         # World size of one camera pixel at unit distance, for automatic map sizes.
         self.pixel_per_distance = 2 * math.tan(camera.yfov / 2) / camera.height * AUTO_TEXEL_PIXELS
         shadow = params.shadows
@@ -417,13 +427,14 @@ def _plan_spot(ctx: _Ctx, lp: LightPlan) -> None:
 
 
 def _pyramid_planes(a_lo: np.ndarray, a_hi: np.ndarray) -> np.ndarray:
-    """Side planes of the pyramid x/(-z) in [a_lo.x, a_hi.x], y/(-z) in [a_lo.y, a_hi.y], z < 0."""
+    """Planes of the pyramid x/(-z) in [a_lo.x, a_hi.x], y/(-z) in [a_lo.y, a_hi.y], z <= 0."""
     return np.array(
         [
             [1.0, 0.0, a_lo[0], 0.0],  # x >= a_lo.x * (-z)
             [-1.0, 0.0, -a_hi[0], 0.0],
             [0.0, 1.0, a_lo[1], 0.0],
             [0.0, -1.0, -a_hi[1], 0.0],
+            [0.0, 0.0, -1.0, 0.0],  # in front of the light
         ]
     )
 

@@ -424,7 +424,9 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
                 sdelta = lp - so
                 sdist = np.linalg.norm(sdelta, axis=1)
                 sd = sdelta / sdist[:, None]
-                smax = sdist - eps
+                # The light is a point, not a surface: stop just short of it (float64 exact
+                # intersection), so casters very close to the light still count.
+                smax = sdist * (1.0 - 1e-9)
             sface, _, _, sun = tr.first_hits(
                 tr.shadow_bvh, so, sd, smax, tr.shadow_test, tr.shadow_threshold
             )

@@ -113,15 +113,30 @@ def grazing_plane() -> Scene:
 
 
 def room() -> Scene:
-    """A closed 8 x 4 x 8 room (inward walls) with a box and a pillar, for point lights inside."""
+    """A closed 8 x 4 x 8 room of six inward-facing walls, with a box and a pillar inside."""
     import trimesh
 
-    shell = trimesh.creation.box(extents=(8, 4, 8))
-    shell.invert()  # faces point inwards
-    shell.apply_translation((0, 2, 0))
+    walls, names = [], []
+    h = np.array([4.0, 2.0, 4.0])
+    centre = np.array([0.0, 2.0, 0.0])
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u, v = [a for a in range(3) if a != axis]
+            corners = []
+            for cu, cv in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                p = centre.copy()
+                p[axis] += sign * h[axis]
+                p[u] += cu * h[u]
+                p[v] += cv * h[v]
+                corners.append(p)
+            wall = trimesh.Trimesh(corners, [[0, 1, 2], [0, 2, 3]], process=False)
+            if np.dot(wall.face_normals[0], centre - corners[0]) < 0:
+                wall.invert()  # face the inside
+            walls.append(wall)
+            names.append(f"wall_{'xyz'[axis]}{'-+'[sign > 0]}")
     return scene_from_meshes(
-        [shell, _box((1, 1, 1), (1.5, 0.5, 1.0)), _box((0.4, 3.0, 0.4), (-1.5, 1.5, -1.0))],
-        ["room", "box", "pillar"],
+        walls + [_box((1, 1, 1), (1.5, 0.5, 1.0)), _box((0.4, 3.0, 0.4), (-1.5, 1.5, -1.0))],
+        names + ["box", "pillar"],
     )
 
 

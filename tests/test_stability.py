@@ -1,0 +1,218 @@
+"""Stiff and extreme cases, each checked against the ray-traced reference or an exact expectation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from renderer import RenderParams, RequestError
+from renderer import testing as T
+
+pytestmark = pytest.mark.gl
+
+CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
+
+
+def iou(renderer, scene, **params):
+    m = T.measure(renderer, scene, RenderParams(**params))
+    return m.metrics[0], m.result
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return T.caster_on_ground()
+
+
+# -- light far away ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("distance", [40.0, 100 * 6.0, 1000 * 6.0])
+def test_far_spot_light(renderer, scene, distance):
+    # The WebGL guide's LIGHT_Y = 40, then 100x and 1000x the scene's size (6 units).
+    direction = np.array([0.3, -1.0, 0.2]) / np.linalg.norm([0.3, -1.0, 0.2])
+    position = -direction * distance
+    cone = math.degrees(math.atan(5.0 / distance)) * 1.2
+    m, result = iou(renderer, scene, camera=CAMERA, lights=[
+        {"type": "spot", "position": position.tolist(), "target": [0, 0, 0], "outer_cone_deg": cone}])
+    assert result.plan["lights"][0]["shadow_map"] == "perspective"
+    assert m.iou >= 0.95, m
+
+
+@pytest.mark.parametrize("distance", [40.0, 600.0, 6000.0])
+def test_far_directional_light_given_by_position(renderer, scene, distance):
+    position = (np.array([-0.3, 1.0, -0.2]) / np.linalg.norm([-0.3, 1.0, -0.2]) * distance).tolist()
+    m, _ = iou(renderer, scene, camera=CAMERA,
+               lights=[{"type": "directional", "position": position, "target": [0, 0, 0]}])
+    assert m.iou >= 0.95, m
+
+
+# -- grazing light ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("elevation", [10.0, 5.0, 2.0])
+def test_grazing_light_has_no_acne(renderer, elevation):
+    e = math.radians(elevation)
+    direction = [0.3 * math.cos(e), -math.sin(e), math.cos(e)]
+    m, _ = iou(renderer, T.grazing_plane(), camera={"eye": [0, 6, 12], "target": [0, 0, 0]},
+               lights=[{"type": "directional", "direction": direction}])
+    assert m.false_shadow_pct <= 0.1, m
+    assert m.pixels > 50_000
+
+
+# -- scale and distance from the origin --------------------------------------------------------
+
+
+@pytest.mark.parametrize("scale, offset", [(1e-3, 0.0), (1e3, 0.0), (1e4, 0.0), (1.0, 1e5), (1e-3, 1e5)])
+def test_same_iou_at_any_scale_and_offset(renderer, scene, scale, offset):
+    light = {"type": "spot", "position": [-3.0, 6.0, 2.0], "target": [0, 0, 0], "outer_cone_deg": 45}
+
+    def params(s, o):
+        off = np.array([o, o, o])
+        move = lambda p: (np.asarray(p) * s + off).tolist()  # noqa: E731
+        return {
+            "camera": {"eye": move(CAMERA["eye"]), "target": move(CAMERA["target"])},
+            "lights": [{**light, "position": move(light["position"]), "target": move(light["target"])},
+                       {"type": "directional", "direction": [-0.5, -1.0, -0.3]}],
+        }
+
+    base = T.measure(renderer, scene, params(1.0, 0.0)).metrics
+    moved = T.measure(renderer, T.transformed(scene, scale, (offset,) * 3), params(scale, offset)).metrics
+    for a, b in zip(base, moved):
+        assert a.iou >= 0.95
+        assert abs(a.iou - b.iou) <= 0.01, (a, b)
+
+
+# -- stiff frusta ----------------------------------------------------------------------------
+
+
+def test_spot_near_far_ratio_of_1e5(renderer):
+    # A caster right in front of the light and receivers 1e5 times further away.
+    import trimesh
+
+    from renderer.scene import scene_from_meshes
+
+    tiny = trimesh.creation.box(extents=(2e-5, 2e-5, 2e-5))
+    tiny.apply_translation((0, 10 - 1e-4 - 1e-5, 0))
+    big = trimesh.creation.box(extents=(1, 1, 1))
+    big.apply_translation((0, 1.0, 0))
+    ground = trimesh.creation.box(extents=(6, 0.01, 6))
+    scene = scene_from_meshes([ground, big, tiny])
+    m, result = iou(renderer, scene, camera=CAMERA, lights=[
+        {"type": "spot", "position": [0, 10, 0], "direction": [0, -1, 0], "outer_cone_deg": 20}])
+    lp = result.plan["lights"][0]
+    assert lp["far"] / lp["near"] > 1e4
+    assert m.iou >= 0.95, m
+
+
+def test_spot_cone_of_179_degrees(renderer, scene):
+    m, result = iou(renderer, scene, camera=CAMERA, lights=[
+        {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0], "outer_cone_deg": 89.5}])
+    assert result.plan["lights"][0]["shadow_map"] == "cube"
+    assert m.iou >= 0.95, m
+
+
+def test_point_light_inside_a_room_uses_all_six_faces(renderer):
+    room = T.room()
+    params = dict(camera={"eye": [3.0, 3.5, 3.0], "target": [-2, -1, -2], "yfov_deg": 45},
+                  lights=[{"type": "point", "position": [0.0, 2.0, 0.0]}], optimize=False)
+    m, result = iou(renderer, room, **params)
+    assert result.plan["lights"][0]["faces"] == [0, 1, 2, 3, 4, 5]
+    assert m.iou >= 0.95, m
+    # With the plan, faces that show no visible receiver are left out; the answer is the same.
+    m2, result2 = iou(renderer, room, **{**params, "optimize": True})
+    assert len(result2.plan["lights"][0]["faces"]) < 6
+    assert m2.iou >= 0.95 and abs(m2.iou - m.iou) < 1e-9
+
+
+# -- degenerate poses --------------------------------------------------------------------------
+
+
+def test_light_straight_down_parallel_to_up(renderer, scene):
+    m, _ = iou(renderer, scene, camera=CAMERA, lights=[{"type": "directional", "direction": [0, -1, 0]}])
+    assert m.iou >= 0.95, m
+
+
+def test_camera_looking_straight_down(renderer, scene):
+    m, _ = iou(renderer, scene, camera={"eye": [0, 8, 0], "target": [0, 0, 0]},
+               lights=[{"type": "directional", "direction": [-0.4, -1, 0.2]}])
+    assert m.iou >= 0.95, m
+
+
+@pytest.mark.parametrize("request_", [
+    {"lights": [{"type": "spot", "position": [1, 2, 3], "target": [1, 2, 3]}]},
+    {"lights": [{"type": "directional", "direction": [0, 0, 0]}]},
+    {"camera": {"eye": [1, 1, 1], "target": [1, 1, 1]}},
+    {"camera": {"pose": [[1, 0, 0, 0], [0, 0, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]]}},
+    {"lights": [{"pose": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, 0], [0, 0, 0, 1]]}]},  # mirrored
+    {"lights": [{"type": "spot", "direction": [0, -1, 0]}]},  # a spot needs a position
+])
+def test_meaningless_poses_are_clear_errors(renderer, scene, request_):
+    with pytest.raises(RequestError):
+        renderer.render(scene, RenderParams(**request_))
+
+
+@pytest.mark.parametrize("request_", [
+    {"lights": [{"direction": [float("nan"), -1, 0]}]},
+    {"camera": {"eye": [float("inf"), 1, 1], "target": [0, 0, 0]}},
+    {"camera": {"pose": [[1, 0, 0, float("nan")], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}},
+])
+def test_non_finite_numbers_are_refused(request_):
+    with pytest.raises(ValidationError):
+        RenderParams(**request_)
+
+
+def test_scaled_and_sheared_poses_are_made_rigid(renderer, scene):
+    pose = np.array(T_look := [[2, 0.3, 0, 4], [0, 2, 0, 4], [0, 0, 2, 6], [0, 0, 0, 1]], float)
+    del T_look
+    from renderer.camera import orthonormalize_pose
+
+    rigid = orthonormalize_pose(pose, "camera")
+    np.testing.assert_allclose(rigid[:3, :3] @ rigid[:3, :3].T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(rigid[:3, 3], pose[:3, 3])
+    # A light pose with scale shines the same way as its rigid version.
+    light_pose = np.eye(4)
+    light_pose[:3, :3] = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]]) * 3.0  # -Z -> -Y, scaled
+    a, _ = iou(renderer, scene, camera=CAMERA, lights=[{"pose": light_pose.tolist()}])
+    b, _ = iou(renderer, scene, camera=CAMERA, lights=[{"direction": [0, -1, 0]}])
+    assert a.iou >= 0.95 and abs(a.iou - b.iou) < 1e-9
+
+
+# -- degenerate geometry ----------------------------------------------------------------------
+
+
+def test_degenerate_triangles_and_a_lone_triangle(renderer):
+    m, _ = iou(renderer, T.degenerate_geometry(), camera=CAMERA,
+               lights=[{"direction": [-0.4, -1, -0.3]}])
+    assert m.iou >= 0.95, m
+
+
+def test_two_sided_thin_sheets_cast_from_both_sides(renderer):
+    for direction in ([-0.4, -1, -0.3], [0.5, -1, 0.6]):
+        m, _ = iou(renderer, T.thin_sheets(), camera=CAMERA, lights=[{"direction": direction}])
+        assert m.iou >= 0.95, m
+
+
+def test_contact_shadow_without_gap_or_leak(renderer, scene):
+    # The post stands on the ground: its shadow must start at its foot.
+    m, _ = iou(renderer, scene, camera={"eye": [3.5, 1.5, 3.0], "target": [1.6, 0.3, 0.8]},
+               lights=[{"direction": [-0.6, -0.5, -0.4]}])
+    assert m.iou >= 0.95, m
+    assert m.missed_shadow_pct < 2.0
+
+
+def test_coplanar_caster_and_receiver_has_no_acne(renderer):
+    import trimesh
+
+    from renderer.scene import scene_from_meshes
+
+    ground = trimesh.Trimesh([[-3, 0, -3], [3, 0, -3], [3, 0, 3], [-3, 0, 3]], [[0, 2, 1], [0, 3, 2]])
+    decal = trimesh.Trimesh([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], [[0, 2, 1], [0, 3, 2]])
+    box = trimesh.creation.box(extents=(0.5, 0.5, 0.5))
+    box.apply_translation((1.5, 0.25, 1.5))
+    m, _ = iou(renderer, scene_from_meshes([ground, decal, box]), camera=CAMERA,
+               lights=[{"direction": [-0.5, -1, -0.2]}])
+    assert m.false_shadow_pct <= 0.1, m
+    assert m.iou >= 0.95, m
