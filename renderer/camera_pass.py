@@ -48,6 +48,7 @@ class CameraPass:
         self.fbo: Framebuffer | None = None
         self._fbo_key: tuple | None = None
         self._white = 0
+        self.variants: set[tuple] = set()  # defines of the programs drawn with, per frame
 
     def _framebuffer(self, width: int, height: int, vis_targets: int) -> Framebuffer:
         key = (width, height, vis_targets)
@@ -75,6 +76,7 @@ class CameraPass:
                params: RenderParams) -> None:
         """Draw the frame into the camera framebuffer (read it back with :meth:`read`)."""
         cam = plan.camera
+        self.variants = set()
         n_lights = len(plan.lights)
         want_vis = "visibility" in params.outputs and n_lights > 0
         vis_targets = (n_lights + 3) // 4 if want_vis else 0
@@ -137,7 +139,9 @@ class CameraPass:
             gp = gpu.primitives[p]
             mat = gpu.scene.primitives[gpu.scene.instances[gp.instances[0]].primitive].material
             receive = gpu.scene.instances[gp.instances[slots[0]]].receive_shadow
-            prog = self.programs.get(VERT, FRAG, frame.defines(gp, mat))
+            defines = frame.defines(gp, mat)
+            self.variants.add(tuple(sorted(defines.items())))
+            prog = self.programs.get(VERT, FRAG, defines)
             prog.use()
             frame.set_frame_uniforms(prog, units)
             prog.set("u_base_color", mat.base_color)
@@ -261,12 +265,12 @@ class _FrameState:
     def set_frame_uniforms(self, prog: Program, units: list[int]) -> None:
         p = self.params
         prog.set("u_view_proj", self.view_proj)
-        prog.set("u_camera_position", self.eye)
         prog.set("u_ambient", p.ambient)
-        prog.set("u_specular", p.specular)
-        prog.set("u_shininess", p.shininess)
         lights = self.plan.lights
-        if lights:
+        if lights:  # without lights only the ambient term remains
+            prog.set("u_camera_position", self.eye)
+            prog.set("u_specular", p.specular)
+            prog.set("u_shininess", p.shininess)
             origin = self.plan.origin
             prog.set("u_light_direction", [lp.light.direction for lp in lights])
             prog.set("u_light_radiance",

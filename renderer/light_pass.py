@@ -71,6 +71,7 @@ class LightPass:
         self.programs = programs
         self.pool: dict[tuple, list[Framebuffer]] = {}
         self.pool_size = pool_size
+        self.variants: set[tuple] = set()  # defines of the programs drawn with, per frame
 
     def _framebuffer(self, key: tuple, taken: set[int]) -> Framebuffer:
         kind, size, encoding, linear = key
@@ -101,6 +102,7 @@ class LightPass:
                ) -> list[ShadowMap]:
         """Render the maps of every light that has one; lights without a plan get no map."""
         maps = []
+        self.variants = set()
         taken: set[int] = set()
         linear = shadows.encoding == "depth" and shadows.filter == "pcf"
         GL.glEnable(GL.GL_DEPTH_TEST)
@@ -150,6 +152,7 @@ class LightPass:
                 "WRITE_DEPTH": perspective or (polygon_offset and shadows.encoding == "depth"),
                 "POLYGON_OFFSET": polygon_offset,
             }
+            self.variants.add(tuple(sorted(defines.items())))
             prog = self.programs.get(VERT, FRAG, defines)
             prog.use()
             prog.set("u_light_view", view)

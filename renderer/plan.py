@@ -232,7 +232,12 @@ class _Ctx:
         self.margin_texels = (shadow.pcf_kernel // 2 if shadow.filter == "pcf" else 0) + 2
 
     def receivers(self) -> np.ndarray:
-        return np.flatnonzero(self.in_view & self.receive)
+        """Receivers the camera sees; without ``optimize``, all receivers when it sees none
+        (the map then exists but changes nothing on screen)."""
+        rec = np.flatnonzero(self.in_view & self.receive)
+        if len(rec) == 0 and not self.optimize:
+            rec = np.flatnonzero(self.receive)
+        return rec
 
     def map_size(self, needed: float) -> int:
         """The request's map size, or for 'auto' the power of two giving ``needed`` texels."""

@@ -261,6 +261,10 @@ class Renderer:
             if not kept:
                 gpu.release()
         result.plan = self._plan_report(plan, params, hit)
+        result.plan["shader_variants"] = {
+            "light_pass": _variant_names(self.light_pass.variants),
+            "camera_pass": _variant_names(self.camera_pass.variants),
+        }
         result.info = self.context.info()
         if params.reference:
             t = time.perf_counter()
@@ -300,3 +304,19 @@ class Renderer:
             m["reference_seconds"] = round(ref.seconds, 4)
             out.append(m)
         return out
+
+
+def _variant_names(variants: set[tuple]) -> list[str]:
+    """Each program variant as its switched-on features, e.g. ``"HAS_UV FILTER_PCF PCF_RADIUS=1"``.
+
+    Attribute locations are left out (they only follow the vertex layout).
+    """
+    out = []
+    for defines in variants:
+        parts = []
+        for name, value in defines:
+            if name.startswith("LOC_") or value is False or (not isinstance(value, bool) and value == 0):
+                continue
+            parts.append(name if value is True else f"{name}={value}")
+        out.append(" ".join(parts))
+    return sorted(set(out))

@@ -174,12 +174,13 @@ def degenerate_geometry() -> Scene:
 
 
 def many_small_objects(n: int = 200, seed: int = 3) -> Scene:
-    """A box over a ground plane, plus ``n`` small boxes far outside the default view."""
+    """A box over a ground plane, plus ``n`` small boxes 60-90 units away along +Z (behind a
+    camera at positive Z looking at the origin)."""
     rng = np.random.default_rng(seed)
     meshes = [_plane(6.0), _box((1, 1, 1), (0, 1.0, 0))]
     for _ in range(n):
-        c = rng.uniform(-1, 1, 3)
-        c = c / np.linalg.norm(c) * rng.uniform(60, 90)
+        # Behind a camera that looks toward -Z at the origin, and beside the ground.
+        c = (rng.uniform(-30, 30), rng.uniform(-5, 30), rng.uniform(60, 90))
         meshes.append(_box((0.3, 0.3, 0.3), c))
     return scene_from_meshes(meshes, ["ground", "box"] + [f"far_{i}" for i in range(n)])
 

@@ -1,0 +1,168 @@
+"""The render plan: what it leaves out, and that leaving it out changes no requested output."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import load_model
+from renderer import RenderParams, load_scene
+from renderer import testing as T
+from renderer.demo import demo_glb
+
+pytestmark = pytest.mark.gl
+
+CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
+ALL = ["color", "visibility", "depth", "light_depth"]
+
+
+def both(renderer, scene, **params):
+    """Render with and without the plan's omissions (same fit and map size either way)."""
+    on = renderer.render(scene, RenderParams(optimize=True, **params))
+    off = renderer.render(scene, RenderParams(optimize=False, **params))
+    return on, off
+
+
+def assert_same_outputs(on, off):
+    if on.color is not None:
+        assert np.max(np.abs(on.color.astype(int) - off.color.astype(int))) <= 1
+    if on.visibility is not None:
+        np.testing.assert_array_equal(on.visibility, off.visibility)
+    if on.depth is not None:
+        np.testing.assert_array_equal(on.depth, off.depth)
+
+
+def test_objects_far_outside_the_view_are_skipped_everywhere(renderer):
+    scene = T.many_small_objects(200)
+    on, off = both(renderer, scene, camera=CAMERA, outputs=ALL,
+                   lights=[{"direction": [-0.5, -1, -0.3]}])
+    assert on.plan["camera_pass"]["skipped"]["outside_view"] == 200
+    light = on.plan["lights"][0]
+    assert light["casters"] == 2
+    assert light["skipped"]["outside_frustum"] == 200
+    assert off.plan["lights"][0]["casters"] == 202
+    assert_same_outputs(on, off)
+
+
+def test_non_casters_are_left_out_of_the_light_pass(renderer):
+    scene = T.ground_only_receives()
+    on, off = both(renderer, scene, camera=CAMERA, outputs=ALL,
+                   lights=[{"direction": [-0.5, -1, -0.3]}])
+    assert on.plan["lights"][0]["skipped"]["non_caster"] == 1
+    assert on.plan["lights"][0]["casters"] == 2
+    assert_same_outputs(on, off)
+
+
+def test_cast_shadow_false_in_gltf_extras_is_honoured(renderer, tmp_path):
+    import trimesh
+
+    scene = trimesh.Scene()
+    ground = trimesh.creation.box(extents=(6, 0.1, 6))
+    scene.add_geometry(ground, node_name="ground")
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    scene.add_geometry(box, node_name="box",
+                       transform=trimesh.transformations.translation_matrix((0, 1.0, 0)))
+    glb = scene.export(file_type="glb")
+    # Mark the box a non-caster the three.js way, in the node's extras.
+    import json
+    import struct
+
+    length = struct.unpack_from("<I", glb, 12)[0]
+    doc = json.loads(glb[20:20 + length])
+    for node in doc["nodes"]:
+        if node.get("name") == "box":
+            node["extras"] = {"castShadow": False}
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    rest = glb[20 + length:]
+    out = b"glTF" + struct.pack("<II", 2, 20 + len(text) + len(rest))
+    out += struct.pack("<II", len(text), 0x4E4F534A) + text + rest
+    loaded = load_scene(out)
+    flags = {i.name: i.cast_shadow for i in loaded.instances}
+    assert flags["box"] is False and flags["ground"] is True
+    params = RenderParams(camera=CAMERA, outputs=["visibility"])
+    r = renderer.render(loaded, params)
+    casting = renderer.render(load_scene(glb), params)
+    assert r.plan["lights"][0]["skipped"]["non_caster"] == 1
+    # What stays shadowed are the ground slab's own sides that face away from the light.
+    assert (r.visibility < 0.5).sum() < 0.3 * (casting.visibility < 0.5).sum()
+
+
+def test_light_that_reaches_nothing_visible_gets_no_pass(renderer):
+    scene = T.caster_on_ground()
+    away = {"type": "spot", "position": [0, 3, 0], "direction": [0, 1, 0], "outer_cone_deg": 30}
+    on, off = both(renderer, scene, camera=CAMERA, outputs=ALL, lights=[away])
+    assert on.plan["lights"][0]["skipped_pass"] == "no_visible_receiver"
+    assert on.plan["light_passes"] == 0 and on.light_depth == []
+    assert_same_outputs(on, off)
+    assert np.all(on.visibility[np.isfinite(on.visibility)] == 1.0)
+
+
+def test_scene_without_lights_has_no_light_pass(renderer):
+    r = renderer.render(T.caster_on_ground(), RenderParams(camera=CAMERA, lights=[]))
+    assert r.plan["light_passes"] == 0
+    assert r.plan["shader_variants"]["light_pass"] == []
+    assert r.color.shape == (480, 640, 3)
+
+
+def test_shader_variants_follow_the_scene(renderer, models):
+    textured = load_model(models, "BoxTextured.glb", ground=True)
+    r = renderer.render(textured, RenderParams(shadows={"filter": "hard"}))
+    variants = r.plan["shader_variants"]["camera_pass"]
+    # The textured box samples its texture; the added ground (no texture) does not.
+    assert any("HAS_UV" in v for v in variants) and any("HAS_UV" not in v for v in variants)
+    assert not any("FILTER_PCF" in v for v in variants)  # no PCF loop with hard filtering
+    assert not any("HAS_SPOT" in v or "HAS_POSITIONAL" in v for v in variants)
+    assert not any("ALPHA_TEST" in v for v in r.plan["shader_variants"]["light_pass"])
+    cutouts = load_model(models, "AlphaBlendModeTest.glb")
+    r = renderer.render(cutouts, RenderParams())
+    assert any("ALPHA_TEST" in v for v in r.plan["shader_variants"]["light_pass"])
+    assert any("ALPHA_MASK" in v for v in r.plan["shader_variants"]["camera_pass"])
+
+
+@pytest.mark.parametrize("name", ["BoxTextured.glb", "AlphaBlendModeTest.glb", "CesiumMilkTruck.glb"])
+def test_specialised_variants_equal_the_generic_program(renderer, models, name):
+    # optimize=False draws every primitive with one all-features variant (white texture and
+    # vertex colour stand-ins, PCF loop, spot and range code): the pictures must agree.
+    scene = load_model(models, name)
+    lights = [{"direction": [-0.5, -1, 0.2]},
+              {"type": "spot", "position": [2, 4, 3], "target": [0, 0, 0], "outer_cone_deg": 50}]
+    on, off = both(renderer, scene, outputs=["color", "visibility"], lights=lights)
+    assert_same_outputs(on, off)
+
+
+def test_outputs_not_requested_are_not_computed(renderer):
+    scene = T.caster_on_ground()
+    r = renderer.render(scene, RenderParams(camera=CAMERA, outputs=["color"]))
+    assert r.visibility is None and r.depth is None and r.light_depth == []
+    assert all("OUT_VISIBILITY" not in v for v in r.plan["shader_variants"]["camera_pass"])
+    r = renderer.render(scene, RenderParams(camera=CAMERA, outputs=["color", "visibility"]))
+    assert all("OUT_VISIBILITY=1" in v for v in r.plan["shader_variants"]["camera_pass"])
+
+
+def test_same_bytes_are_parsed_and_uploaded_once(renderer):
+    data = demo_glb()
+    first = renderer.render(data, RenderParams(width=64, height=48))
+    again = renderer.render(data, RenderParams(width=64, height=48))
+    assert again.plan["scene_cache"] == "hit"
+    assert again.timings["upload"] < first.timings["upload"] or first.plan["scene_cache"] == "hit"
+
+
+def test_auto_map_size_follows_the_view(renderer):
+    scene = T.caster_on_ground()
+    near = renderer.render(scene, RenderParams(camera={"eye": [2, 2, 3], "target": [0, 0.5, 0]}))
+    far = renderer.render(scene, RenderParams(camera={"eye": [20, 20, 30], "target": [0, 0.5, 0]}))
+    small = renderer.render(scene, RenderParams(width=160, height=120,
+                                                camera={"eye": [2, 2, 3], "target": [0, 0.5, 0]}))
+    sizes = [r.plan["lights"][0]["map_size"] for r in (near, far, small)]
+    assert sizes[0] > sizes[1] and sizes[0] > sizes[2], sizes
+
+
+def test_tighter_fit_does_not_raise_the_error(renderer):
+    # Fitting to what the camera sees (and auto size) against the whole-scene fit of the same
+    # map size: the error against the reference must not grow.
+    scene = T.many_small_objects(50)
+    fitted = T.measure(renderer, scene, RenderParams(camera=CAMERA, shadows={"map_size": 1024}))
+    whole = T.measure(renderer, scene, RenderParams(camera=CAMERA, optimize=False,
+                                                    shadows={"map_size": 1024}))
+    assert fitted.metrics[0].misclassified_pct <= whole.metrics[0].misclassified_pct + 1e-9
