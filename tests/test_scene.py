@@ -1,0 +1,132 @@
+"""Loading glTF: every model, external resources, and clear errors for bad or unsafe files."""
+
+from __future__ import annotations
+
+import base64
+import json
+
+import numpy as np
+import pytest
+
+from renderer import LimitError, SceneError, load_scene
+from renderer.scene import MappingResolver
+
+MODELS = ["AlphaBlendModeTest.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "Duck.glb", "cube.glb"]
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_every_binary_model_loads(models, name):
+    scene = load_scene(models / name)
+    assert scene.triangle_count > 0
+    lo, hi = scene.bounds
+    assert np.all(hi > lo)
+    for prim in scene.primitives:
+        assert prim.normals.shape == prim.positions.shape
+        np.testing.assert_allclose(np.linalg.norm(prim.normals, axis=1), 1.0, atol=1e-3)
+
+
+def test_node_transforms_are_applied(models):
+    # Duck's mesh is in centimetres under a node scaled by 0.01.
+    duck = load_scene(models / "Duck.glb")
+    assert np.max(duck.bounds[1] - duck.bounds[0]) < 3.0
+    assert np.max(duck.primitives[0].local_bounds[1] - duck.primitives[0].local_bounds[0]) > 100
+
+
+def test_file_camera_is_read_with_its_node_transform(models):
+    duck = load_scene(models / "Duck.glb")
+    (cam,) = duck.cameras
+    assert cam.yfov > 0 and np.allclose(cam.pose[3], [0, 0, 0, 1])
+    # The camera looks at the duck: its -Z axis points toward the scene's centre.
+    to_centre = duck.bounds.mean(axis=0) - cam.pose[:3, 3]
+    assert np.dot(-cam.pose[:3, 2], to_centre / np.linalg.norm(to_centre)) > 0.8
+
+
+def test_gltf_with_external_buffer_needs_the_buffer(models):
+    data = (models / "TestScene.gltf").read_bytes()
+    scene = load_scene(data, resources={"TestScene.bin": (models / "TestScene.bin").read_bytes()})
+    assert len(scene.instances) > 1
+    with pytest.raises(SceneError, match="not provided"):
+        load_scene(data)
+
+
+def _gltf_with_uri(uri: str) -> bytes:
+    doc = {
+        "asset": {"version": "2.0"},
+        "buffers": [{"uri": uri, "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+        "scene": 0,
+    }
+    return json.dumps(doc).encode()
+
+
+def test_embedded_data_uri_gltf_loads():
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    uri = "data:application/octet-stream;base64," + base64.b64encode(tri).decode()
+    scene = load_scene(_gltf_with_uri(uri))
+    assert scene.triangle_count == 1
+
+
+@pytest.mark.parametrize("uri", ["../secret.bin", "/etc/passwd", "file:///etc/passwd",
+                                 "http://example.com/a.bin", "sub/../../x.bin", "C:/x.bin"])
+def test_unsafe_uris_are_refused(uri):
+    with pytest.raises(SceneError, match="refusing|outside|not provided"):
+        load_scene(_gltf_with_uri(uri), resources={"x.bin": b"\0" * 36})
+
+
+def test_resolver_never_reads_the_filesystem(tmp_path):
+    (tmp_path / "a.bin").write_bytes(b"1234")
+    resolver = MappingResolver({"a.bin": b"abcd"})
+    assert resolver.get("a.bin") == b"abcd"
+    with pytest.raises(SceneError):
+        resolver.get(str(tmp_path / "a.bin"))
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        (b"", "empty"),
+        (b"glTF\x02\x00\x00\x00\xff\xff\xff\x00", "binary glTF|truncated|corrupt"),
+        (b"NOTGLTF" + b"\0" * 40, "JSON"),
+        (b'{"asset": {"version": "1.0"}}', "version"),
+        (b'{"nodes": []}', "asset"),
+        (b'{"asset": {"version": "2.0"}}', "no triangles"),
+    ],
+)
+def test_bad_files_raise_scene_error(data, message):
+    with pytest.raises(SceneError, match=message):
+        load_scene(data)
+
+
+def test_truncated_binary_gltf(models):
+    data = (models / "Duck.glb").read_bytes()
+    for cut in (12, 100, len(data) // 2):
+        with pytest.raises(SceneError):
+            load_scene(data[:cut], file_type="glb")
+
+
+def test_triangle_limit(models):
+    with pytest.raises(LimitError) as info:
+        load_scene(models / "Duck.glb", max_triangles=100)
+    assert info.value.limit == "max_triangles"
+
+
+def test_khr_lights_punctual_are_read():
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    doc = json.loads(_gltf_with_uri("data:application/octet-stream;base64,"
+                                    + base64.b64encode(tri).decode()))
+    doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    doc["extensions"] = {"KHR_lights_punctual": {"lights": [
+        {"type": "spot", "intensity": 2.0, "spot": {"outerConeAngle": 0.5}}]}}
+    doc["nodes"].append({"translation": [0, 5, 0], "rotation": [-0.7071068, 0, 0, 0.7071068],
+                         "extensions": {"KHR_lights_punctual": {"light": 0}}})
+    doc["scenes"][0]["nodes"].append(1)
+    scene = load_scene(json.dumps(doc).encode())
+    (light,) = scene.lights
+    assert light.type == "spot" and light.outer_cone == 0.5
+    np.testing.assert_allclose(light.pose[:3, 3], [0, 5, 0])
+    np.testing.assert_allclose(-light.pose[:3, 2], [0, -1, 0], atol=1e-6)  # looks down
