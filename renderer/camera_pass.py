@@ -26,6 +26,8 @@ MAX_LIGHTS = 8
 # Attribute slots that no VAO enables: reading them yields the constant set with glVertexAttrib,
 # which is how the generic variant feeds white colours and (0, 0) UVs to primitives without them.
 SPARE_UV, SPARE_COLOR = 14, 15
+# Light clip space [-1, 1] -> texture space [0, 1] on x, y and z (the documents' bias matrix).
+BIAS = np.array([[0.5, 0, 0, 0.5], [0, 0.5, 0, 0.5], [0, 0, 0.5, 0.5], [0, 0, 0, 1.0]])
 
 
 @dataclass
@@ -254,6 +256,7 @@ class _FrameState:
             "FILTER_PCF": self.pcf,
             "PCF_RADIUS": self.pcf_radius,
             "HW_PCF": shadows.encoding == "depth" and shadows.filter == "pcf",
+            "NORMAL_OFFSET": bool(self.maps) and shadows.bias.normal_offset > 0,
             "LOC_MODEL": gp.loc_model,
         }
         if d["HAS_UV"]:
@@ -293,8 +296,9 @@ class _FrameState:
         cubes = [m for m in self.maps if m.plan.kind == "cube"]
         if two_d:
             prog.set("u_map2d", [units[self.maps.index(m)] for m in two_d])
-            prog.set("u_map2d_view", [m.plan.view for m in two_d])
-            prog.set("u_map2d_proj", [m.plan.proj for m in two_d])
+            prog.set("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d])
+            if self.pcf_radius > 0:
+                prog.set("u_map2d_view", [m.plan.view for m in two_d])
             prog.set("u_map2d_range", [(m.plan.near, m.plan.far, 0.0, m.plan.size) for m in two_d])
             prog.set("u_map2d_texel", [m.plan.texel for m in two_d])
         if cubes:

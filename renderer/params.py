@@ -128,7 +128,7 @@ class BiasParams(_Model):
 class ShadowParams(_Model):
     """How shadows are computed."""
 
-    encoding: Encoding = "rgba8"
+    encoding: Encoding = "depth"
     map_size: int | Literal["auto"] = Field(
         default="auto",
         description="texels per side (power of two), or 'auto': the smallest power of two whose "
@@ -186,6 +186,6 @@ EXAMPLE_PARAMS: dict = {
     "height": 480,
     "camera": {"eye": [3, 2.5, 4], "target": [0, 0.5, 0], "yfov_deg": 45},
     "lights": [{"type": "directional", "direction": [-0.4, -1.0, -0.3], "intensity": 1.0}],
-    "shadows": {"encoding": "rgba8", "map_size": "auto", "filter": "pcf", "pcf_kernel": 3},
+    "shadows": {"encoding": "depth", "map_size": "auto", "filter": "pcf", "pcf_kernel": 3},
     "outputs": ["color", "light_depth", "visibility"],
 }

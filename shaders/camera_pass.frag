@@ -4,7 +4,7 @@
 //
 // Variant defines: NUM_LIGHTS, NUM_MAPS_2D, NUM_MAPS_CUBE, HAS_SPOT, HAS_POSITIONAL, HAS_UV,
 // HAS_COLOR, ALPHA_MASK, OUT_VISIBILITY (number of RGBA visibility targets), ENCODING,
-// FILTER_PCF, PCF_RADIUS, HW_PCF.
+// FILTER_PCF, PCF_RADIUS, HW_PCF, NORMAL_OFFSET.
 #define LIGHT_DIRECTIONAL 0
 #define LIGHT_SPOT 1
 #define LIGHT_POINT 2
@@ -48,11 +48,12 @@ uniform vec4 u_bias;         // constant, slope, slope max, normal offset (texel
 uniform float u_bias_steps;  // quantisation bias in steps of the encoding
 #endif
 #if NUM_MAPS_2D > 0
+in vec4 v_map2d[NUM_MAPS_2D];
 uniform MAP2D u_map2d[NUM_MAPS_2D];
-uniform mat4 u_map2d_view[NUM_MAPS_2D];
-uniform mat4 u_map2d_proj[NUM_MAPS_2D];
-// near, far, texel world size: x + y * depth (ortho: y = 0; perspective: x = 0), map size
-uniform vec4 u_map2d_range[NUM_MAPS_2D];
+uniform mat4 u_map2d_matrix[NUM_MAPS_2D];  // world -> biased light clip (normal offset)
+uniform mat4 u_map2d_view[NUM_MAPS_2D];    // world -> light view (receiver-plane PCF)
+uniform vec4 u_map2d_range[NUM_MAPS_2D];   // near, far, unused, map size
+// World size of a texel at light depth d: x + y * d (orthographic: y = 0; perspective: x = 0).
 uniform vec2 u_map2d_texel[NUM_MAPS_2D];
 #endif
 #if NUM_MAPS_CUBE > 0
@@ -91,50 +92,66 @@ float bias_world(float texel, float tan_l) {
 #endif
 
 #if NUM_MAPS_2D > 0
-float visibility_2d(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
+// Shadow of the receiver at p in 2D map m. `c` is the interpolated light coordinate from the
+// vertex shader (bias matrix applied: xy in [0, 1]; for orthographic maps z is the linear depth
+// t, for perspective ones w is the distance along the light's axis).
+float visibility_2d_from(MAP2D map, vec4 c, int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     vec4 range = u_map2d_range[m];
-    float depth = -(u_map2d_view[m] * vec4(p, 1.0)).z;
-    float texel = u_map2d_texel[m].x + u_map2d_texel[m].y * depth;
-    vec3 q = p + ng * (u_bias.w * texel * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
-    vec4 view = u_map2d_view[m] * vec4(q, 1.0);
-    vec4 clip = u_map2d_proj[m] * view;
-    vec2 uv = clip.xy / clip.w * 0.5 + 0.5;
-    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
     float span = range.y - range.x;
-    float t = (-view.z - range.x) / span;
+    float persp = u_map2d_texel[m].y;  // > 0: perspective, world texel size grows with depth
+#if NORMAL_OFFSET
+    float texel0 = u_map2d_texel[m].x + persp * c.w;
+    vec3 q = p + ng * (u_bias.w * texel0 * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
+    c = u_map2d_matrix[m] * vec4(q, 1.0);
+#endif
+    vec2 uv = c.xy / c.w;
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
+    float t = persp > 0.0 ? (c.w - range.x) / span : c.z;
+    float texel = u_map2d_texel[m].x + persp * c.w;
     float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+#if PCF_RADIUS > 0
     // Depth of the receiver's plane along a tap moved by one texel (dx, dy) across the map:
     // orthographic rays change it by (n.x dx + n.y dy) / n.z, perspective rays through the light
     // by -depth (n.x dx + n.y dy) / (n . p) (both to first order).
     vec3 nl = mat3(u_map2d_view[m]) * ng;
-    vec2 slope = u_map2d_texel[m].y > 0.0
-        ? -depth * nl.xy / min(dot(nl, view.xyz), -1e-30)
-        : nl.xy / max(nl.z, 1e-6);
+    vec2 slope = nl.xy / max(nl.z, 1e-6);
+    if (persp > 0.0) {
+        vec3 pv = (u_map2d_view[m] * vec4(p, 1.0)).xyz;
+        slope = -c.w * nl.xy / min(dot(nl, pv), -1e-30);
+    }
     vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
-    // Constant indices only: dynamic indexing of sampler arrays is where drivers differ.
+#else
+    vec2 dref = vec2(0.0);
+#endif
+    return shadow_2d(map, uv, ref, dref, range.w);
+}
+
+// Constant indices only: dynamic indexing of sampler arrays is where drivers differ.
+#define MAP2D_CASE(K) if (m == K) return visibility_2d_from(u_map2d[K], v_map2d[K], K, p, ng, cos_l, tan_l);
+float visibility_2d(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
 #if NUM_MAPS_2D > 0
-    if (m == 0) return shadow_2d(u_map2d[0], uv, ref, dref, range.w);
+    MAP2D_CASE(0)
 #endif
 #if NUM_MAPS_2D > 1
-    if (m == 1) return shadow_2d(u_map2d[1], uv, ref, dref, range.w);
+    MAP2D_CASE(1)
 #endif
 #if NUM_MAPS_2D > 2
-    if (m == 2) return shadow_2d(u_map2d[2], uv, ref, dref, range.w);
+    MAP2D_CASE(2)
 #endif
 #if NUM_MAPS_2D > 3
-    if (m == 3) return shadow_2d(u_map2d[3], uv, ref, dref, range.w);
+    MAP2D_CASE(3)
 #endif
 #if NUM_MAPS_2D > 4
-    if (m == 4) return shadow_2d(u_map2d[4], uv, ref, dref, range.w);
+    MAP2D_CASE(4)
 #endif
 #if NUM_MAPS_2D > 5
-    if (m == 5) return shadow_2d(u_map2d[5], uv, ref, dref, range.w);
+    MAP2D_CASE(5)
 #endif
 #if NUM_MAPS_2D > 6
-    if (m == 6) return shadow_2d(u_map2d[6], uv, ref, dref, range.w);
+    MAP2D_CASE(6)
 #endif
 #if NUM_MAPS_2D > 7
-    if (m == 7) return shadow_2d(u_map2d[7], uv, ref, dref, range.w);
+    MAP2D_CASE(7)
 #endif
     return 1.0;
 }
@@ -147,10 +164,12 @@ float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     vec3 a = abs(d);
     float depth = max(a.x, max(a.y, a.z));
     float texel = 2.0 * depth / range.z;  // 90-degree faces
+#if NORMAL_OFFSET
     vec3 q = p + ng * (u_bias.w * texel * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
     d = q - u_mapcube_position[m];
     a = abs(d);
     depth = max(a.x, max(a.y, a.z));
+#endif
     // The face's two lateral axes.
     vec3 u;
     vec3 v;
@@ -164,10 +183,14 @@ float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     float span = range.y - range.x;
     float t = (depth - range.x) / span;
     float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+#if PCF_RADIUS > 0
     // A tap moved by w across the face meets the receiver's plane at face depth
     // depth (n . d) / (n . (d + w)): to first order a change of -depth (n . w) / (n . d).
     vec2 slope = -depth * vec2(dot(ng, u), dot(ng, v)) / min(dot(ng, d), -1e-30);
     vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
+#else
+    vec2 dref = vec2(0.0);
+#endif
 #if NUM_MAPS_CUBE > 0
     if (m == 0) return shadow_cube(u_mapcube[0], d, ref, dref, u * texel, v * texel);
 #endif
@@ -251,7 +274,9 @@ void main() {
         float shadow = 1.0;
 #if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
         int m = u_light_map[i];
-        if (m != -1 && u_receive_shadow != 0) {
+        // Outside a spot's cone nothing is lit: no lookup, and the visibility reads 1 there
+        // whether or not the plan gave this light a map.
+        if (m != -1 && u_receive_shadow != 0 && atten > 0.0) {
             // The side of the surface that faces this light, for the normal offset and the slope.
             vec3 ngl = dot(ng, l) < 0.0 ? -ng : ng;
             float cos_l = max(dot(ngl, l), 1e-4);

@@ -14,6 +14,12 @@ out vec4 v_color;
 layout(location = LOC_MODEL) in mat4 a_model;  // per instance
 
 uniform mat4 u_view_proj;
+#if NUM_MAPS_2D > 0
+// Per 2D shadow map: world -> light clip with x, y and z mapped to [0, 1] (the documents' bias
+// matrix), evaluated per vertex and interpolated rather than per fragment.
+uniform mat4 u_map2d_matrix[NUM_MAPS_2D];
+out vec4 v_map2d[NUM_MAPS_2D];
+#endif
 
 out vec3 v_world;
 out vec3 v_normal;
@@ -31,6 +37,9 @@ void main() {
 #endif
 #if HAS_COLOR
     v_color = a_color;
+#endif
+#if NUM_MAPS_2D > 0
+    for (int m = 0; m < NUM_MAPS_2D; ++m) v_map2d[m] = u_map2d_matrix[m] * world;
 #endif
     gl_Position = u_view_proj * world;
 }
