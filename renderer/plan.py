@@ -216,6 +216,7 @@ class _Ctx:
         self.bounds = b
         self.corners = box_corners(b)  # (N, 8, 3)
         self.cast = np.array([inst.cast_shadow for inst in scene.instances])
+        self.planes = _instance_planes(scene, origin)
         self.receive = np.array([inst.receive_shadow for inst in scene.instances])
         cam_pose = camera.pose.copy()
         cam_pose[:3, 3] -= origin
@@ -251,6 +252,76 @@ class _Ctx:
         c = self.bounds[rec].mean(axis=1)
         d = np.linalg.norm(c - self.cam_pos, axis=1)
         return float(max(np.min(d), self.camera.znear))
+
+
+def _primitive_plane(prim) -> tuple[np.ndarray, np.ndarray] | None:
+    """(unit normal, point) when every vertex of the primitive lies on one plane, else None."""
+    cached = getattr(prim, "_plane_cache", False)
+    if cached is not False:
+        return cached
+    p = prim.positions.astype(np.float64)
+    centre = p.mean(axis=0)
+    extent = float(np.max(p.max(axis=0) - p.min(axis=0)))
+    result = None
+    if len(p) >= 3 and extent > 0:
+        _, sv, vt = np.linalg.svd(p - centre, full_matrices=False)
+        if sv[-1] <= 1e-7 * max(sv[0], 1e-300) * np.sqrt(len(p)) or np.max(
+            np.abs((p - centre) @ vt[-1])
+        ) <= 1e-7 * extent:
+            result = (vt[-1], centre)
+    prim._plane_cache = result
+    return result
+
+
+def _instance_planes(scene: Scene, origin: np.ndarray) -> list:
+    """Per instance: (unit normal, point) in origin-relative world space if planar, else None."""
+    out = []
+    for inst in scene.instances:
+        plane = _primitive_plane(scene.primitives[inst.primitive])
+        if plane is None:
+            out.append(None)
+            continue
+        n, c = plane
+        m = inst.matrix
+        n_w = np.linalg.solve(m[:3, :3].T, n) if abs(np.linalg.det(m[:3, :3])) > 0 else None
+        if n_w is None or not np.all(np.isfinite(n_w)) or np.linalg.norm(n_w) == 0:
+            out.append(None)
+            continue
+        out.append((n_w / np.linalg.norm(n_w), m[:3, :3] @ c + m[:3, 3] - origin))
+    return out
+
+
+def _shadowless_planes(ctx: _Ctx, lp: LightPlan, rec: np.ndarray) -> np.ndarray:
+    """Planar casters that cannot shadow any visible receiver of this light.
+
+    A flat caster (a ground plane, a wall) separates space in two: it can shadow only what lies
+    on its far side from the light. When every visible receiver but itself is on the light's
+    side (or it is edge-on to a directional light), it casts onto nothing the camera sees and is
+    left out of the fit and, with ``optimize``, of the light pass.
+    """
+    out = np.zeros(len(ctx.planes), bool)
+    tol = 1e-9 * max(float(np.max(ctx.bounds[:, 1] - ctx.bounds[:, 0])), 1e-300)
+    for i, plane in enumerate(ctx.planes):
+        if plane is None or not ctx.cast[i]:
+            continue
+        n, p0 = plane
+        if lp.light.type == "directional":
+            facing = -float(np.dot(n, lp.light.direction))
+            if abs(facing) <= 1e-12:
+                out[i] = True  # edge-on: it projects to a line
+                continue
+        else:
+            facing = float(np.dot(n, lp.position - p0))
+            if abs(facing) <= tol:
+                continue  # the light sits in the plane
+        side = np.sign(facing)
+        others = rec[rec != i]
+        if len(others) == 0:
+            out[i] = True
+            continue
+        d = (ctx.corners[others] - p0) @ (n * side)  # (R, 8): >= 0 on the light's side
+        out[i] = bool(np.all(d >= -tol))
+    return out
 
 
 def make_plan(
@@ -299,17 +370,20 @@ def make_plan(
 
 
 def _select_casters(ctx: _Ctx, lp: LightPlan, in_frustum: np.ndarray, depth_min: np.ndarray,
-                    far: float) -> np.ndarray:
+                    far: float, shadowless: np.ndarray) -> np.ndarray:
     """Casters that can shadow a receiver, counting the others by reason; returns their indices.
 
     Without ``optimize`` every caster is drawn; the frustum is fitted the same way either way, so
-    the maps are identical (what is skipped rasterises nothing or lies beyond the far plane).
+    the maps agree where it matters (what is skipped rasterises nothing, lies beyond the far
+    plane, or is a plane that only its own lit side sees).
     """
-    relevant = ctx.cast & in_frustum & (depth_min <= far)
+    relevant = ctx.cast & in_frustum & (depth_min <= far) & ~shadowless
     if ctx.optimize:
         lp.skipped["non_caster"] = int((~ctx.cast).sum())
         lp.skipped["outside_frustum"] = int((ctx.cast & ~in_frustum).sum())
         lp.skipped["behind_receivers"] = int((ctx.cast & in_frustum & (depth_min > far)).sum())
+        lp.skipped["plane_facing_receivers"] = int(
+            (ctx.cast & in_frustum & (depth_min <= far) & shadowless).sum())
         lp.skipped = Counter({k: v for k, v in lp.skipped.items() if v})
         return np.flatnonzero(relevant)
     lp.skipped["non_caster"] = int((~ctx.cast).sum())
@@ -339,8 +413,9 @@ def _plan_directional(ctx: _Ctx, lp: LightPlan) -> None:
     rec_far = float(min(-r_lo[2], -f.min(axis=0)[2]))
     in_frustum = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
     depth_min = -hi[:, 2]
-    casters = _select_casters(ctx, lp, in_frustum, depth_min, rec_far)
-    fit = ctx.cast & in_frustum & (depth_min <= rec_far)
+    shadowless = _shadowless_planes(ctx, lp, rec)
+    casters = _select_casters(ctx, lp, in_frustum, depth_min, rec_far, shadowless)
+    fit = ctx.cast & in_frustum & (depth_min <= rec_far) & ~shadowless
     if not fit.any():
         lp.reason = "no_caster_in_frustum"
         return
@@ -401,8 +476,9 @@ def _plan_spot(ctx: _Ctx, lp: LightPlan) -> None:
     depth_min = np.where(
         np.all(depth > 0, axis=1), depth.min(axis=1), 0.0
     )
-    casters = _select_casters(ctx, lp, in_frustum, depth_min, rec_far)
-    fit = ctx.cast & in_frustum & (depth_min <= rec_far)
+    shadowless = _shadowless_planes(ctx, lp, rec)
+    casters = _select_casters(ctx, lp, in_frustum, depth_min, rec_far, shadowless)
+    fit = ctx.cast & in_frustum & (depth_min <= rec_far) & ~shadowless
     if not fit.any():
         lp.reason = "no_caster_in_frustum"
         return
@@ -480,8 +556,9 @@ def _plan_cube(ctx: _Ctx, lp: LightPlan) -> None:
     if not used_faces:
         lp.reason = "no_visible_receiver"
         return
-    casters = _select_casters(ctx, lp, caster_mask, near_dist, rec_far)
-    fit = ctx.cast & caster_mask & (near_dist <= rec_far)
+    shadowless = _shadowless_planes(ctx, lp, rec)
+    casters = _select_casters(ctx, lp, caster_mask, near_dist, rec_far, shadowless)
+    fit = ctx.cast & caster_mask & (near_dist <= rec_far) & ~shadowless
     if not fit.any():
         lp.reason = "no_caster_in_frustum"
         return

@@ -185,6 +185,18 @@ def many_small_objects(n: int = 200, seed: int = 3) -> Scene:
     return scene_from_meshes(meshes, ["ground", "box"] + [f"far_{i}" for i in range(n)])
 
 
+def pebbles_on_a_plain(size: float = 400.0) -> Scene:
+    """Seven 0.3-unit cubes on a ground plane ``size`` units wide, seen up to the horizon.
+
+    The ground casts too (no extras): a fit that covered every caster would spread the map over
+    the whole plain.
+    """
+    meshes = [_plane(size)]
+    for x in np.linspace(-3, 3, 7):
+        meshes.append(_box((0.3, 0.3, 0.3), (x, 0.15, 0.0)))
+    return scene_from_meshes(meshes, ["ground"] + [f"pebble_{i}" for i in range(7)])
+
+
 def ground_only_receives() -> Scene:
     """The caster-on-ground scene with ``castShadow = false`` on the ground (three.js extras)."""
     scene = caster_on_ground()
@@ -200,6 +212,7 @@ __all__ = [
     "ground_only_receives",
     "many_small_objects",
     "measure",
+    "pebbles_on_a_plain",
     "room",
     "thin_sheets",
     "transformed",

@@ -62,6 +62,18 @@ def test_grazing_light_has_no_acne(renderer, elevation):
     assert m.pixels > 50_000
 
 
+@pytest.mark.parametrize("elevation", [30.0, 5.0])
+def test_small_casters_on_a_vast_ground_plane(renderer, elevation):
+    # The plane reaches the horizon; it casts nothing onto what stands on it, so the map is fitted
+    # to the pebbles, not to the plain.
+    e = math.radians(elevation)
+    m, result = iou(renderer, T.pebbles_on_a_plain(), camera={"eye": [0, 3, 6], "target": [0, 0, 0]},
+                    lights=[{"direction": [0.3 * math.cos(e), -math.sin(e), math.cos(e)]}])
+    assert result.plan["lights"][0]["skipped"] == {"plane_facing_receivers": 1}
+    assert m.iou >= 0.95, m
+    assert m.false_shadow_pct <= 0.2, m
+
+
 # -- scale and distance from the origin --------------------------------------------------------
 
 

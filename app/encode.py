@@ -1,0 +1,345 @@
+"""Encoding render results for HTTP: PNG images, ``multipart/mixed``, JSON, and the headers.
+
+Image outputs and how they are stored as PNG:
+
+``color``
+    8-bit RGB (RGBA with ``alpha: true``), as rendered.
+``light_depth_<i>``
+    8-bit grayscale of light ``i``'s shadow map: linear depth over the light's [near, far], near
+    = black, no caster = white (255). Cube maps (point lights) are laid out 3 x 2 faces
+    (+X -X +Y / -Y +Z -Z). ``near`` and ``far`` are given with the image.
+``visibility_<i>``
+    16-bit grayscale of light ``i``'s shadow factor: ``round(v * 65535)`` with v = 1 lit and
+    v = 0 shadowed (fractions from PCF); pixels with no geometry are 0, like full shadow.
+``depth``
+    16-bit grayscale of the camera-space depth (distance along the view axis), normalised over
+    the finite depths of the image: ``round((d - near) / (far - near) * 65534)``, so the nearest
+    pixel is 0 and the farthest 65534; pixels with no geometry are 65535 (white). ``near`` and
+    ``far`` (world units) are given with the image; decode with
+    ``d = near + v / 65534 * (far - near)`` for ``v < 65535``.
+
+With ``multipart/mixed`` the extra values travel as part headers (``X-Depth-Near``,
+``X-Depth-Far``, ``X-Light``); with JSON they are fields beside the base64 PNG.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+import secrets
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from PIL import Image
+from pydantic import BaseModel, Field
+from starlette.responses import Response
+
+from renderer import RenderResult
+
+PNG_COMPRESS_LEVEL = 3  # zlib level: the default (6) costs much more time for little size
+MEDIA_PNG = "image/png"
+MEDIA_MULTIPART = "multipart/mixed"
+MEDIA_JSON = "application/json"
+FORMATS = (MEDIA_PNG, MEDIA_MULTIPART, MEDIA_JSON)
+
+
+@dataclass
+class EncodedImage:
+    """One output as PNG bytes, with what is needed to interpret it."""
+
+    name: str
+    png: bytes
+    width: int
+    height: int
+    bit_depth: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+class ImageJSON(BaseModel):
+    """One image output in a JSON response."""
+
+    png: str = Field(description="the PNG file, base64-encoded")
+    width: int
+    height: int
+    bit_depth: int = Field(description="8 or 16 bits per channel")
+    light: int | None = Field(default=None, description="light index (light_depth, visibility)")
+    kind: str | None = Field(default=None, description="light_depth: ortho, perspective or cube")
+    near: float | None = Field(default=None, description="depth range start (world units)")
+    far: float | None = Field(default=None, description="depth range end (world units)")
+
+
+class RenderJSON(BaseModel):
+    """The ``application/json`` response of ``POST /render``."""
+
+    outputs: dict[str, ImageJSON] = Field(
+        description="color, light_depth_<i>, visibility_<i>, depth: whichever were requested"
+    )
+    timings: dict[str, float] = Field(description="seconds per stage")
+    plan: dict[str, Any] = Field(description="what the render ran and what it left out")
+    gl: dict[str, Any] = Field(description="GL platform, renderer and version")
+    metrics: list[dict[str, Any]] | None = Field(
+        default=None, description="error against the ray-traced reference, per light"
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Content negotiation
+# --------------------------------------------------------------------------------------------
+
+
+def _accept_ranges(accept: str) -> list[tuple[str, float]]:
+    ranges = []
+    for item in accept.split(","):
+        fields = [f.strip() for f in item.split(";")]
+        media = fields[0].lower()
+        if not media:
+            continue
+        q = 1.0
+        for f in fields[1:]:
+            if f.lower().startswith("q="):
+                try:
+                    q = float(f[2:])
+                except ValueError:
+                    q = 0.0
+        ranges.append((media, q if math.isfinite(q) else 0.0))
+    return ranges
+
+
+def _quality(offer: str, ranges: list[tuple[str, float]]) -> float:
+    """q of the most specific media range matching ``offer`` (RFC 9110 precedence)."""
+    kind = offer.split("/")[0]
+    best, best_rank = 0.0, -1
+    for media, q in ranges:
+        rank = 2 if media == offer else 1 if media == f"{kind}/*" else 0 if media == "*/*" else -1
+        if rank > best_rank:
+            best, best_rank = q, rank
+    return best if best_rank >= 0 else 0.0
+
+
+def choose_format(accept: str | None, outputs: list[str]) -> str | None:
+    """The response media type for an ``Accept`` header, or None when none is acceptable.
+
+    Among equally acceptable types PNG wins when the colour image was requested (so plain
+    ``curl`` gets a picture), else ``multipart/mixed``, then JSON.
+    """
+    ranges = _accept_ranges(accept or "*/*") or [("*/*", 1.0)]
+    order = (MEDIA_PNG, MEDIA_MULTIPART, MEDIA_JSON) if "color" in outputs else (
+        MEDIA_MULTIPART, MEDIA_JSON, MEDIA_PNG)
+    scored = [(_quality(m, ranges), -i, m) for i, m in enumerate(order)]
+    q, _, media = max(scored)
+    return media if q > 0 else None
+
+
+# --------------------------------------------------------------------------------------------
+# Images
+# --------------------------------------------------------------------------------------------
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    """PNG of a uint8 (H, W), (H, W, 3), (H, W, 4) or uint16 (H, W) array."""
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image)).save(buf, format="PNG",
+                                                      compress_level=PNG_COMPRESS_LEVEL)
+    return buf.getvalue()
+
+
+def visibility_u16(v: np.ndarray) -> np.ndarray:
+    """Shadow factor in [0, 1] -> uint16 ``round(v * 65535)``; NaN (no geometry) -> 0."""
+    v = np.nan_to_num(v.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0)
+    return np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16)
+
+
+def depth_u16(d: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
+    """Camera depth -> uint16 normalised over its finite range; NaN (no geometry) -> 65535.
+
+    Returns
+    -------
+    image : ndarray, shape (H, W), uint16
+    near, far : float or None
+        The depth range mapped to 0 and 65534 (None when the image has no geometry).
+    """
+    finite = np.isfinite(d)
+    out = np.full(d.shape, 65535, np.uint16)
+    if not finite.any():
+        return out, None, None
+    near, far = float(d[finite].min()), float(d[finite].max())
+    span = far - near if far > near else 1.0
+    out[finite] = np.rint((d[finite].astype(np.float64) - near) / span * 65534.0).astype(np.uint16)
+    return out, near, far
+
+
+def encode_outputs(result: RenderResult, names: list[str]) -> list[EncodedImage]:
+    """Encode the requested outputs of a render as PNG images.
+
+    Parameters
+    ----------
+    result : RenderResult
+    names : list of str
+        Output kinds to encode (``color``, ``light_depth``, ``visibility``, ``depth``); kinds the
+        result does not hold are skipped.
+    """
+    images: list[EncodedImage] = []
+    if "color" in names and result.color is not None:
+        c = result.color
+        images.append(EncodedImage("color", png_bytes(c), c.shape[1], c.shape[0], 8))
+    if "light_depth" in names:
+        for ld in result.light_depth:
+            img = ld.image
+            images.append(EncodedImage(
+                f"light_depth_{ld.light}", png_bytes(img), img.shape[1], img.shape[0], 8,
+                {"light": ld.light, "kind": ld.kind, "near": float(ld.near), "far": float(ld.far)},
+            ))
+    if "visibility" in names and result.visibility is not None:
+        vis = result.visibility
+        for i in range(vis.shape[2]):
+            images.append(EncodedImage(f"visibility_{i}", png_bytes(visibility_u16(vis[..., i])),
+                                       vis.shape[1], vis.shape[0], 16, {"light": i}))
+    if "depth" in names and result.depth is not None:
+        img, near, far = depth_u16(result.depth)
+        images.append(EncodedImage("depth", png_bytes(img), img.shape[1], img.shape[0], 16,
+                                   {"near": near, "far": far}))
+    return images
+
+
+# --------------------------------------------------------------------------------------------
+# Bodies
+# --------------------------------------------------------------------------------------------
+
+
+def jsonable(obj: Any) -> Any:
+    """Plain JSON types: numpy scalars and arrays converted, non-finite floats -> None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def multipart_body(images: list[EncodedImage]) -> tuple[bytes, str]:
+    """A ``multipart/mixed`` body with one PNG part per image.
+
+    Returns
+    -------
+    body : bytes
+    content_type : str
+        Including the boundary.
+    """
+    boundary = "shadowmap-" + secrets.token_hex(12)
+    out = bytearray()
+    for im in images:
+        headers = [
+            f"Content-Type: {MEDIA_PNG}",
+            f'Content-Disposition: inline; name="{im.name}"; filename="{im.name}.png"',
+            f"Content-Length: {len(im.png)}",
+        ]
+        if "light" in im.meta:
+            headers.append(f"X-Light: {im.meta['light']}")
+        for key in ("near", "far"):
+            if im.meta.get(key) is not None:
+                headers.append(f"X-Depth-{key.capitalize()}: {im.meta[key]!r}")
+        out += f"--{boundary}\r\n".encode() + "\r\n".join(headers).encode() + b"\r\n\r\n"
+        out += im.png + b"\r\n"
+    out += f"--{boundary}--\r\n".encode()
+    return bytes(out), f'{MEDIA_MULTIPART}; boundary="{boundary}"'
+
+
+def json_body(images: list[EncodedImage], report: dict[str, Any],
+              timings: dict[str, float]) -> bytes:
+    """The JSON response: base64 PNGs plus timings, plan, GL info and metrics."""
+    outputs = {}
+    for im in images:
+        entry = {"png": base64.b64encode(im.png).decode("ascii"), "width": im.width,
+                 "height": im.height, "bit_depth": im.bit_depth}
+        entry.update(im.meta)
+        outputs[im.name] = entry
+    body = {"outputs": outputs, "timings": timings, "plan": report.get("plan", {}),
+            "gl": report.get("gl", {})}
+    if report.get("metrics") is not None:
+        body["metrics"] = report["metrics"]
+    return json.dumps(jsonable(body), allow_nan=False, separators=(",", ":")).encode()
+
+
+# --------------------------------------------------------------------------------------------
+# Headers
+# --------------------------------------------------------------------------------------------
+
+
+def server_timing(stages: dict[str, float], notes: dict[str, str] | None = None) -> str:
+    """``Server-Timing`` header value from seconds per stage (the header wants milliseconds)."""
+    notes = notes or {}
+    items = []
+    for name, seconds in stages.items():
+        item = f"{name};dur={seconds * 1000.0:.2f}"
+        if name in notes:
+            item += f';desc="{notes[name]}"'
+        items.append(item)
+    return ", ".join(items)
+
+
+def plan_header(plan: dict[str, Any]) -> str:
+    """Compact ASCII JSON of the render plan, for ``X-Render-Plan``."""
+    return json.dumps(jsonable(plan), separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+
+# --------------------------------------------------------------------------------------------
+# Responses
+# --------------------------------------------------------------------------------------------
+
+#: Renderer stages reported in ``Server-Timing``, in pipeline order.
+RENDER_STAGES = ("upload", "plan", "light", "camera", "readback", "reference")
+
+
+def build_response(media: str, result: RenderResult, outputs: list[str],
+                   before: dict[str, float], notes: dict[str, str], started: float) -> Response:
+    """The HTTP response of a finished render, with ``Server-Timing`` and ``X-Render-Plan``.
+
+    Parameters
+    ----------
+    media : str
+        One of :data:`FORMATS`.
+    result : RenderResult
+    outputs : list of str
+        The requested outputs (PNG responses carry only the colour image).
+    before : dict of str to float
+        Seconds spent before the renderer's own stages (read, queue, parse).
+    notes : dict of str to str
+        ``desc`` of some stages, e.g. ``{"parse": "scene cache hit"}``.
+    started : float
+        ``time.perf_counter()`` at the start of the request.
+    """
+    t = time.perf_counter()
+    images = encode_outputs(result, ["color"] if media == MEDIA_PNG else outputs)
+    stages = dict(before)
+    stages["parse"] = stages.get("parse", 0.0) + result.timings.get("load", 0.0)
+    for name in RENDER_STAGES:
+        if name in result.timings:
+            stages[name] = result.timings[name]
+    stages["encode"] = time.perf_counter() - t
+    if media == MEDIA_PNG:
+        body, content_type = images[0].png, MEDIA_PNG
+    elif media == MEDIA_MULTIPART:
+        body, content_type = multipart_body(images)
+    else:
+        timings = {k: round(v, 6) for k, v in stages.items()}
+        timings["render"] = result.timings.get("total", 0.0)
+        timings["total"] = round(time.perf_counter() - started, 6)
+        body, content_type = json_body(images, result.report(), timings), MEDIA_JSON
+    stages["total"] = time.perf_counter() - started
+    headers = {
+        "Server-Timing": server_timing(stages, notes),
+        "X-Render-Plan": plan_header(result.plan),
+        "Cache-Control": "no-store",
+    }
+    if media == MEDIA_PNG:
+        headers["Content-Disposition"] = 'inline; filename="color.png"'
+    return Response(body, media_type=content_type, headers=headers)

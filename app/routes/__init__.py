@@ -1,0 +1,1 @@
+"""HTTP routes: rendering, health and version, and the web page."""

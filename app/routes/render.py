@@ -1,0 +1,91 @@
+"""``POST /render``: validate, queue to the GL thread, encode the result."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Header
+from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
+
+from ..deps import RENDER_REQUEST_BODY, RenderInputDep, WorkerDep
+from ..encode import FORMATS, MEDIA_PNG, RenderJSON, build_response, choose_format
+from ..errors import ErrorBody, ServiceError
+
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+
+RESPONSES: dict = {
+    200: {
+        "description": "The render. `image/png` (default): the colour image. `multipart/mixed`: "
+        "one PNG part per output (`color`, `light_depth_<i>`, `visibility_<i>` as 16-bit "
+        "round(v*65535) with no geometry = 0, `depth` as 16-bit normalised over the image's "
+        "depth range with no geometry = 65535), named in Content-Disposition. "
+        "`application/json`: the same PNGs base64-encoded plus timings, plan, GL info and "
+        "metrics. Every response has `Server-Timing` and `X-Render-Plan` (compact JSON).",
+        "content": {
+            "image/png": _BINARY,
+            "multipart/mixed": _BINARY,
+            "application/json": {"schema": {"$ref": "#/components/schemas/RenderJSON"}},
+        },
+        "headers": {
+            "Server-Timing": {"description": "read, queue, parse, upload, plan, light, camera, "
+                              "readback, encode, total (ms)", "schema": {"type": "string"}},
+            "X-Render-Plan": {"description": "what ran and what was left out (JSON)",
+                              "schema": {"type": "string"}},
+        },
+    },
+    400: {"model": ErrorBody, "description": "invalid or unsafe scene file, bad zip"},
+    406: {"model": ErrorBody, "description": "no acceptable response format"},
+    413: {"model": ErrorBody, "description": "upload (or unpacked zip) over the limit"},
+    415: {"model": ErrorBody, "description": "unsupported request body type"},
+    422: {"model": ErrorBody, "description": "params invalid or impossible, or over a limit"},
+    500: {"model": ErrorBody, "description": "OpenGL failure"},
+    503: {"model": ErrorBody, "description": "queue full or renderer down (see Retry-After)"},
+    504: {"model": ErrorBody, "description": "the render ran past the time limit"},
+}
+
+router = APIRouter(tags=["render"])
+
+
+@router.post(
+    "/render",
+    summary="Render a glTF scene with shadow maps",
+    response_class=Response,
+    responses=RESPONSES,
+    openapi_extra={"requestBody": RENDER_REQUEST_BODY},
+)
+async def render(
+    inp: RenderInputDep,
+    worker: WorkerDep,
+    accept: Annotated[str | None, Header(description="image/png, multipart/mixed or "
+                                         "application/json")] = None,
+) -> Response:
+    """Render the uploaded scene (or the built-in demo scene when there is none).
+
+    Send the scene as the `scene` part of a `multipart/form-data` body with the request as JSON
+    in the `params` part, or as a raw `model/gltf-binary` body with `params` in the query.
+    """
+    outputs = inp.params.outputs
+    media = choose_format(accept, outputs)
+    if media is None:
+        raise ServiceError(406, "not_acceptable", f"cannot answer {accept!r}: the formats are "
+                           + ", ".join(FORMATS))
+    if media == MEDIA_PNG and "color" not in outputs:
+        raise ServiceError(406, "not_acceptable", "an image/png response is the color output, "
+                           "which params.outputs leaves out: add it, or accept multipart/mixed "
+                           "or application/json")
+    params = inp.params
+    if media == MEDIA_PNG and outputs != ["color"]:
+        # The PNG response holds only the colour image: skip rendering and reading back the rest.
+        params = params.model_copy(update={"outputs": ["color"]})
+    outcome = await worker.render(inp.upload, params)
+    before = {"read": inp.read_seconds, "queue": outcome.queue, "parse": outcome.parse}
+    notes = {"parse": "scene cache hit"} if outcome.cache_hit else {}
+    # PNG encoding is CPU work: off the event loop, and off the GL thread so it overlaps the
+    # next render.
+    return await run_in_threadpool(build_response, media, outcome.result, outputs, before, notes,
+                                   inp.started)
+
+
+# Referenced from the 200 response above; registered in the OpenAPI components by main.py.
+RESPONSE_MODELS = (RenderJSON,)

@@ -1,0 +1,290 @@
+"""Turning an HTTP request into a scene upload and render params, within the configured limits.
+
+Nothing here touches the file system or the network: the scene, its buffers and textures come
+only from the request body (a single file or a ``.zip``), and the loader refuses any URI that is
+not a plain relative name inside the upload.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import posixpath
+import zipfile
+import zlib
+from dataclasses import dataclass, field
+from typing import Any
+
+from renderer import LimitError, RenderParams, SceneError
+
+from .errors import ServiceError
+from .settings import Settings
+
+SCENE_SUFFIXES = (".glb", ".gltf")
+# A real request is a few kB even with 8 lights; the cap keeps parsing on the event loop cheap.
+MAX_PARAMS_BYTES = 64 * 1024
+ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # local file header; empty archive
+GLB_MAGIC = b"glTF"
+
+#: Raw (non-multipart) request bodies accepted as a scene, by media type.
+RAW_SCENE_TYPES = {
+    "model/gltf-binary": "glb",
+    "model/gltf+json": "gltf",
+    "application/zip": "zip",
+    "application/x-zip-compressed": "zip",
+    "application/octet-stream": None,  # sniffed from the first bytes
+}
+
+
+@dataclass
+class SceneUpload:
+    """One scene as uploaded, ready for :func:`renderer.load_scene`.
+
+    Attributes
+    ----------
+    data : bytes
+        The ``.glb`` or ``.gltf`` file.
+    file_type : {"glb", "gltf"}
+    resources : dict of str to bytes
+        Other files of a ``.zip`` upload, by their path relative to the scene file.
+    key : str
+        SHA-256 of the upload as received (the worker's parsed-scene cache key).
+    name : str
+        File name, for messages.
+    """
+
+    data: bytes
+    file_type: str
+    resources: dict[str, bytes] = field(default_factory=dict)
+    key: str = ""
+    name: str = "scene"
+
+
+# --------------------------------------------------------------------------------------------
+# Body
+# --------------------------------------------------------------------------------------------
+
+
+def too_large(limit: str, detail: str) -> ServiceError:
+    return ServiceError(413, "payload_too_large", detail, limit=limit)
+
+
+def check_content_length(header: str | None, limit: int) -> None:
+    """Refuse a declared body size over the limit before reading any of it."""
+    if header is None:
+        return
+    try:
+        declared = int(header)
+    except ValueError:
+        raise ServiceError(400, "bad_request", "Content-Length is not a number") from None
+    if declared > limit:
+        raise too_large("max_upload_bytes",
+                        f"the request body of {declared} bytes is over the limit of {limit} bytes")
+
+
+async def read_limited(chunks, limit: int) -> bytes:
+    """Collect an async stream of byte chunks, failing as soon as it grows past ``limit``.
+
+    Counting matters even after :func:`check_content_length`: a chunked request declares no size.
+    """
+    buf = bytearray()
+    async for chunk in chunks:
+        buf += chunk
+        if len(buf) > limit:
+            raise too_large("max_upload_bytes",
+                            f"the request body is over the limit of {limit} bytes")
+    return bytes(buf)
+
+
+# --------------------------------------------------------------------------------------------
+# Params
+# --------------------------------------------------------------------------------------------
+
+
+def _no_constants(name: str) -> Any:
+    raise ValueError(f"{name} is not allowed: numbers must be finite")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):  # e.g. 1e999 overflows to inf
+        raise ValueError(f"{text} is not a finite number")
+    return value
+
+
+def parse_params(text: str | bytes) -> RenderParams:
+    """Parse the ``params`` JSON into the request model.
+
+    Python's :mod:`json` accepts ``NaN`` and ``Infinity`` literals and turns ``1e999`` into
+    infinity; all three are refused here, before the model sees them.
+
+    Raises
+    ------
+    ServiceError
+        413 when the text is over :data:`MAX_PARAMS_BYTES`, 422 when it is not a JSON object.
+    pydantic.ValidationError
+        When the object does not match :class:`renderer.RenderParams`.
+    """
+    if len(text) > MAX_PARAMS_BYTES:
+        raise too_large("max_params_bytes", f"params is {len(text)} bytes, over the limit of "
+                        f"{MAX_PARAMS_BYTES} bytes")
+    try:
+        obj = json.loads(text, parse_constant=_no_constants, parse_float=_finite_float)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError
+        raise ServiceError(422, "invalid_params", f"params is not valid JSON: {exc}") from None
+    if not isinstance(obj, dict):
+        raise ServiceError(422, "invalid_params", "params must be a JSON object")
+    return RenderParams.model_validate(obj)
+
+
+def check_params_limits(params: RenderParams, settings: Settings) -> None:
+    """The limits that need no scene, checked before a request takes a place in the queue.
+
+    The renderer checks them again (and the scene-dependent ones) on the GL thread.
+    """
+    if params.width * params.height > settings.max_pixels:
+        raise LimitError("max_pixels", f"{params.width}x{params.height} is over the limit of "
+                         f"{settings.max_pixels} pixels")
+    size = params.shadows.map_size
+    if size != "auto" and size > settings.max_map_size:
+        raise LimitError("max_map_size",
+                         f"map_size {size} is over the limit of {settings.max_map_size}")
+    if params.lights is not None and len(params.lights) > settings.max_lights:
+        raise LimitError("max_lights", f"{len(params.lights)} lights is over the limit of "
+                         f"{settings.max_lights}")
+
+
+# --------------------------------------------------------------------------------------------
+# Scene files
+# --------------------------------------------------------------------------------------------
+
+
+def _kind(data: bytes, filename: str | None, declared: str | None) -> str:
+    """'glb', 'gltf' or 'zip': from the file name, else the media type, else the first bytes."""
+    if filename:
+        suffix = posixpath.splitext(filename.lower())[1]
+        if suffix in (".glb", ".gltf", ".zip"):
+            return suffix[1:]
+        if suffix:
+            raise SceneError(f"unsupported scene file {filename!r}: use .glb, .gltf or .zip")
+    if declared:
+        return declared
+    if data[:4] in ZIP_MAGIC:
+        return "zip"
+    return "glb" if data[:4] == GLB_MAGIC else "gltf"
+
+
+def scene_upload(data: bytes, filename: str | None, settings: Settings,
+                 declared: str | None = None) -> SceneUpload:
+    """Classify an uploaded file and unpack it when it is a ``.zip``.
+
+    Parameters
+    ----------
+    data : bytes
+    filename : str, optional
+        The name the client gave the file part.
+    settings : Settings
+    declared : {"glb", "gltf", "zip"}, optional
+        Kind implied by the request's media type, used when there is no file name.
+
+    Raises
+    ------
+    SceneError
+        Empty file, unknown suffix, or a bad or unsafe ``.zip``.
+    ServiceError
+        413 when a ``.zip`` unpacks to more than the limit.
+    """
+    if not data:
+        raise SceneError("the scene file is empty")
+    kind = _kind(data, filename, declared)
+    key = hashlib.sha256(data).hexdigest()
+    name = filename or f"scene.{kind}"
+    if kind != "zip":
+        return SceneUpload(data, kind, {}, key, name)
+    scene_name, scene_data, resources = unpack_zip(
+        data, settings.max_unzipped_bytes, settings.max_zip_entries
+    )
+    ft = posixpath.splitext(scene_name.lower())[1][1:]
+    return SceneUpload(scene_data, ft, resources, key, f"{name}:{scene_name}")
+
+
+def _entry_name(raw: str) -> str:
+    """A zip entry's name as a clean relative path; SceneError when it could leave the archive."""
+    name = raw.replace("\\", "/")
+    parts = name.split("/")
+    if name.startswith("/") or ":" in parts[0] or ".." in parts or "\0" in name:
+        raise SceneError(f"refusing zip entry {raw!r}: only relative names inside the archive "
+                         "are allowed")
+    return posixpath.normpath(name)
+
+
+def unpack_zip(data: bytes, max_bytes: int,
+               max_entries: int) -> tuple[str, bytes, dict[str, bytes]]:
+    """Unpack a ``.zip`` holding one ``.gltf``/``.glb`` and the files it refers to.
+
+    Sizes are checked twice: the declared sizes before anything is unpacked, then the bytes
+    actually produced while unpacking (a crafted archive may under-declare).
+
+    Returns
+    -------
+    scene_name : str
+    scene_data : bytes
+    resources : dict of str to bytes
+        Every other file, by its path relative to the scene file's folder (files outside that
+        folder cannot be referenced by a safe URI and are left out).
+    """
+    if data[:4] not in ZIP_MAGIC:
+        raise SceneError("not a zip archive (the file does not start with a zip header)")
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+        infos = archive.infolist()
+    except (zipfile.BadZipFile, zlib.error, ValueError, EOFError, OSError) as exc:
+        raise SceneError(f"not a valid zip archive: {exc}") from None
+    files = []
+    for info in infos:
+        name = _entry_name(info.filename)
+        if info.is_dir() or name.startswith("__MACOSX/"):
+            continue
+        files.append((name, info))
+    if len(files) > max_entries:
+        raise too_large("max_zip_entries",
+                        f"the archive holds {len(files)} files, over the limit of {max_entries}")
+    declared = sum(info.file_size for _, info in files)
+    if declared > max_bytes:
+        raise too_large("max_unzipped_bytes", f"the archive unpacks to {declared} bytes, over "
+                        f"the limit of {max_bytes} bytes")
+    scenes = [name for name, _ in files if posixpath.splitext(name.lower())[1] in SCENE_SUFFIXES]
+    if len(scenes) != 1:
+        found = ", ".join(scenes[:5]) if scenes else "none"
+        raise SceneError(f"the archive must hold exactly one .gltf or .glb file (found {found})")
+    scene_name = scenes[0]
+    folder = posixpath.dirname(scene_name)
+    total = 0
+    contents: dict[str, bytes] = {}
+    for name, info in files:
+        buf = bytearray()
+        try:
+            with archive.open(info) as f:
+                while chunk := f.read(1 << 16):
+                    buf += chunk
+                    total += len(chunk)
+                    if total > max_bytes:
+                        raise too_large("max_unzipped_bytes", "the archive unpacks to more than "
+                                        f"the limit of {max_bytes} bytes")
+        except ServiceError:
+            raise
+        except (zipfile.BadZipFile, zlib.error, RuntimeError, NotImplementedError, ValueError,
+                EOFError, OSError) as exc:
+            # RuntimeError: encrypted entry; NotImplementedError: unknown compression method.
+            raise SceneError(f"cannot unpack zip entry {name!r}: {exc}") from None
+        contents[name] = bytes(buf)
+    resources = {}
+    for name, blob in contents.items():
+        if name == scene_name:
+            continue
+        rel = posixpath.relpath(name, folder) if folder else name
+        if not rel.startswith("../"):
+            resources[rel] = blob
+    return scene_name, contents[scene_name], resources

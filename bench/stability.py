@@ -1,0 +1,124 @@
+"""Stiff and extreme cases for every depth encoding: IoU and acne against the ray-traced reference.
+
+The same cases as tests/test_stability.py, run for all five encodings (the tests assert on the
+default only), printed as a Markdown table and written to bench/results/stability.md.
+
+    python bench/stability.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import renderer  # noqa: F401  (selects the GL platform before anything imports OpenGL)
+from renderer import Renderer, RenderParams
+from renderer import testing as T
+from renderer.params import ENCODINGS
+
+RESULTS = Path(__file__).resolve().parent / "results"
+CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
+
+
+def _far_spot(distance: float) -> dict:
+    d = np.array([0.3, -1.0, 0.2]) / np.linalg.norm([0.3, -1.0, 0.2])
+    cone = math.degrees(math.atan(5.0 / distance)) * 1.2
+    return {"type": "spot", "position": (-d * distance).tolist(), "target": [0, 0, 0],
+            "outer_cone_deg": cone}
+
+
+def _grazing_at(elevation: float) -> dict:
+    e = math.radians(elevation)
+    return {"type": "directional", "direction": [0.3 * math.cos(e), -math.sin(e), math.cos(e)]}
+
+
+def cases(quick: bool):
+    """(name, scene, params, criterion) for every case; criterion is "iou" or "acne"."""
+    base = T.caster_on_ground()
+    grazing = T.grazing_plane()
+    out = [
+        ("spot light at 40 (LIGHT_Y)", base, dict(camera=CAMERA, lights=[_far_spot(40)]), "iou"),
+        ("spot light 100x scene size", base, dict(camera=CAMERA, lights=[_far_spot(600)]), "iou"),
+        ("spot light 1000x scene size", base, dict(camera=CAMERA, lights=[_far_spot(6000)]), "iou"),
+        ("directional from 1000x away", base, dict(camera=CAMERA, lights=[
+            {"type": "directional", "position": [-1800, 6000, -1200], "target": [0, 0, 0]}]), "iou"),
+    ]
+    for e in (10, 5, 2):
+        out.append((f"grazing light {e} deg", grazing,
+                    dict(camera={"eye": [0, 6, 12], "target": [0, 0, 0]}, lights=[_grazing_at(e)]),
+                    "acne"))
+    plain = T.pebbles_on_a_plain()
+    for e in (30, 5):
+        out.append((f"pebbles on a 400-unit plain, light {e} deg", plain,
+                    dict(camera={"eye": [0, 3, 6], "target": [0, 0, 0]}, lights=[_grazing_at(e)]),
+                    "iou"))
+    light = {"type": "directional", "direction": [-0.5, -1.0, -0.3]}
+    for scale, off in ((1e-3, 0.0), (1e4, 0.0), (1.0, 1e5)):
+        o = np.array([off] * 3)
+        cam = {"eye": (np.array(CAMERA["eye"]) * scale + o).tolist(),
+               "target": (np.array(CAMERA["target"]) * scale + o).tolist()}
+        out.append((f"scale {scale:g}, offset {off:g}", T.transformed(base, scale, (off,) * 3),
+                    dict(camera=cam, lights=[light]), "iou"))
+    out += [
+        ("spot cone 179 deg", base, dict(camera=CAMERA, lights=[
+            {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0],
+             "outer_cone_deg": 89.5}]), "iou"),
+        ("point light in a room", T.room(), dict(
+            camera={"eye": [3.0, 3.5, 3.0], "target": [-2, -1, -2]},
+            lights=[{"type": "point", "position": [0, 2, 0]}]), "iou"),
+        ("thin two-sided sheets", T.thin_sheets(), dict(camera=CAMERA, lights=[
+            {"direction": [-0.4, -1, -0.3]}]), "iou"),
+        ("degenerate triangles", T.degenerate_geometry(), dict(camera=CAMERA, lights=[
+            {"direction": [-0.4, -1, -0.3]}]), "iou"),
+        ("contact shadow", base, dict(camera={"eye": [3.5, 1.5, 3.0], "target": [1.6, 0.3, 0.8]},
+                                      lights=[{"direction": [-0.6, -0.5, -0.4]}]), "iou"),
+    ]
+    return out[:6] if quick else out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="a few cases only")
+    args = ap.parse_args(argv)
+    started = time.perf_counter()
+    rows = []
+    with Renderer() as r:
+        todo = cases(args.quick)
+        for k, (name, scene, params, criterion) in enumerate(todo):
+            cells = []
+            for enc in ENCODINGS:
+                p = RenderParams(**params, shadows={"encoding": enc})
+                m = T.measure(r, scene, p).metrics[0]
+                ok = m.false_shadow_pct <= 0.1 if criterion == "acne" else m.iou >= 0.95
+                cells.append((m.iou, m.false_shadow_pct, ok))
+            rows.append((name, criterion, cells))
+            print(f"\r{k + 1}/{len(todo)} {name:40s}", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+    head = "| case | criterion | " + " | ".join(ENCODINGS) + " |"
+    lines = [head, "| :--- | :--- |" + " ---: |" * len(ENCODINGS)]
+    for name, criterion, cells in rows:
+        shown = []
+        for iou, acne, ok in cells:
+            value = f"{acne:.3f} % acne" if criterion == "acne" else f"IoU {iou:.3f}"
+            shown.append(f"{value} {'pass' if ok else '**FAIL**'}")
+        crit = "false shadow ≤ 0.1 %" if criterion == "acne" else "IoU ≥ 0.95"
+        lines.append(f"| {name} | {crit} | " + " | ".join(shown) + " |")
+    info = r.info
+    text = "\n".join(lines)
+    footer = (f"\n\n{info['renderer']} ({info['platform']}), 640x480, default settings but for "
+              f"the encoding; {time.perf_counter() - started:.0f} s.\n")
+    print(text + footer)
+    if not args.quick:
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "stability.md").write_text("# Stiff and extreme cases, every encoding\n\n"
+                                              + text + footer)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
