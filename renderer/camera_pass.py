@@ -217,8 +217,11 @@ class _FrameState:
         lights = [lp.light for lp in plan.lights]
         self.n_2d = sum(1 for m in maps if m.plan.kind != "cube")
         self.n_cube = sum(1 for m in maps if m.plan.kind == "cube")
-        self.has_spot = generic or any(lt.type == "spot" for lt in lights)
-        self.has_positional = generic or any(lt.type != "directional" for lt in lights)
+        # The light types are constants of the variant, so code for absent types is compiled
+        # out whatever these say: they only decide which uniforms exist.
+        self.has_spot = any(lt.type == "spot" for lt in lights)
+        self.has_positional = any(lt.type != "directional" for lt in lights)
+        self.has_direction = any(lt.type != "point" for lt in lights)
         shadows = params.shadows
         self.pcf = bool(maps) and (generic or shadows.filter == "pcf")
         self.pcf_radius = shadows.pcf_kernel // 2 if shadows.filter == "pcf" else 0
@@ -259,6 +262,9 @@ class _FrameState:
             "NORMAL_OFFSET": bool(self.maps) and shadows.bias.normal_offset > 0,
             "LOC_MODEL": gp.loc_model,
         }
+        if self.plan.lights:
+            d["LIGHT_TYPES"] = ", ".join(str(LIGHT_TYPES[lp.light.type]) for lp in self.plan.lights)
+            d["LIGHT_MAPS"] = ", ".join(str(m) for m in self.map_slot)
         if d["HAS_UV"]:
             d["LOC_UV"] = gp.loc_uv if gp.texture is not None else SPARE_UV
         if d["HAS_COLOR"]:
@@ -275,18 +281,16 @@ class _FrameState:
             prog.set("u_specular", p.specular)
             prog.set("u_shininess", p.shininess)
             origin = self.plan.origin
-            prog.set("u_light_direction", [lp.light.direction for lp in lights])
+            if self.has_direction:
+                prog.set("u_light_direction", [lp.light.direction for lp in lights])
             prog.set("u_light_radiance",
                      [np.asarray(lp.light.color) * lp.light.intensity for lp in lights])
             if self.has_positional:
-                prog.set("u_light_type", [LIGHT_TYPES[lp.light.type] for lp in lights])
                 prog.set("u_light_position", [lp.light.position - origin for lp in lights])
                 prog.set("u_light_range", [lp.light.range or 0.0 for lp in lights])
             if self.has_spot:
                 prog.set("u_light_cone", [(np.cos(lp.light.outer_cone), np.cos(lp.light.inner_cone))
                                           for lp in lights])
-            if self.maps:
-                prog.set("u_light_map", self.map_slot)
         if not self.maps:
             return
         b = p.shadows.bias

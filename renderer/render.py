@@ -315,7 +315,7 @@ def _variant_names(variants: set[tuple]) -> list[str]:
     for defines in variants:
         parts = []
         for name, value in defines:
-            if name.startswith("LOC_") or value is False or (not isinstance(value, bool) and value == 0):
+            if name.startswith(("LOC_", "LIGHT_")) or value is False or (not isinstance(value, bool) and value == 0):
                 continue
             parts.append(name if value is True else f"{name}={value}")
         out.append(" ".join(parts))

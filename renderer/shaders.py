@@ -145,10 +145,13 @@ class Program:
         fn, width, dtype = setter
         flat = np.ascontiguousarray(v, dtype=dtype).reshape(-1)
         count = flat.size // width
-        if flat.size % width or count < 1 or count > size:
+        if flat.size % width or count < 1:
             raise ShaderError(
-                f"{self.label}: uniform {name!r} takes {size} value(s) of {width}, got shape {v.shape}"
+                f"{self.label}: uniform {name!r} takes value(s) of {width}, got shape {v.shape}"
             )
+        # The compiler may shorten an array to its last element in use: the rest is unused.
+        count = min(count, size)
+        flat = flat[: count * width]
         if width == 16:
             fn(loc, count, GL.GL_TRUE, flat)  # row-major numpy matrices
         else:

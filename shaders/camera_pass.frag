@@ -29,11 +29,14 @@ uniform float u_specular;
 uniform float u_shininess;
 
 #if NUM_LIGHTS > 0
-uniform int u_light_type[NUM_LIGHTS];
+// The light set is part of the variant (LIGHT_TYPES, LIGHT_MAPS are comma-separated lists): with
+// constant types and map slots the unrolled loop keeps only each light's own code path.
+const int LIGHT_TYPE[NUM_LIGHTS] = int[NUM_LIGHTS](LIGHT_TYPES);
+// Map slot per light: >= 0 2D map; <= -2 cube map -(m + 2); -1 none.
+const int LIGHT_MAP[NUM_LIGHTS] = int[NUM_LIGHTS](LIGHT_MAPS);
 uniform vec3 u_light_position[NUM_LIGHTS];
 uniform vec3 u_light_direction[NUM_LIGHTS];  // the way the light travels
 uniform vec3 u_light_radiance[NUM_LIGHTS];   // colour x intensity
-uniform int u_light_map[NUM_LIGHTS];         // >= 0: 2D map; <= -2: cube map -(m + 2); -1: none
 #if HAS_SPOT
 uniform vec2 u_light_cone[NUM_LIGHTS];       // cos(outer), cos(inner)
 #endif
@@ -254,7 +257,7 @@ void main() {
         vec3 l = -u_light_direction[i];
         float atten = 1.0;
 #if HAS_POSITIONAL
-        if (u_light_type[i] != LIGHT_DIRECTIONAL) {
+        if (LIGHT_TYPE[i] != LIGHT_DIRECTIONAL) {
             vec3 d = u_light_position[i] - p;
             float dist = length(d);
             l = d / max(dist, 1e-30);
@@ -264,7 +267,7 @@ void main() {
                 atten = x * x;
             }
 #if HAS_SPOT
-            if (u_light_type[i] == LIGHT_SPOT) {
+            if (LIGHT_TYPE[i] == LIGHT_SPOT) {
                 atten *= smoothstep(u_light_cone[i].x, u_light_cone[i].y,
                                     dot(-l, u_light_direction[i]));
             }
@@ -273,7 +276,7 @@ void main() {
 #endif
         float shadow = 1.0;
 #if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
-        int m = u_light_map[i];
+        int m = LIGHT_MAP[i];
         // Outside a spot's cone nothing is lit: no lookup, and the visibility reads 1 there
         // whether or not the plan gave this light a map.
         if (m != -1 && u_receive_shadow != 0 && atten > 0.0) {
