@@ -391,6 +391,19 @@ def _select_casters(ctx: _Ctx, lp: LightPlan, in_frustum: np.ndarray, depth_min:
     return np.flatnonzero(ctx.cast)
 
 
+def _casters_and_fit(ctx: _Ctx, lp: LightPlan, rec: np.ndarray, in_frustum: np.ndarray,
+                     depth_min: np.ndarray, far: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(casters to draw, casters the frustum is fitted to); None, with the reason recorded,
+    when nothing can cast onto a visible receiver."""
+    shadowless = _shadowless_planes(ctx, lp, rec)
+    casters = _select_casters(ctx, lp, in_frustum, depth_min, far, shadowless)
+    fit = ctx.cast & in_frustum & (depth_min <= far) & ~shadowless
+    if not fit.any():
+        lp.reason = "no_caster_in_frustum"
+        return None
+    return casters, fit
+
+
 def _plan_directional(ctx: _Ctx, lp: LightPlan) -> None:
     rec = ctx.receivers()
     if len(rec) == 0:
@@ -413,12 +426,10 @@ def _plan_directional(ctx: _Ctx, lp: LightPlan) -> None:
     rec_far = float(min(-r_lo[2], -f.min(axis=0)[2]))
     in_frustum = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
     depth_min = -hi[:, 2]
-    shadowless = _shadowless_planes(ctx, lp, rec)
-    casters = _select_casters(ctx, lp, in_frustum, depth_min, rec_far, shadowless)
-    fit = ctx.cast & in_frustum & (depth_min <= rec_far) & ~shadowless
-    if not fit.any():
-        lp.reason = "no_caster_in_frustum"
+    chosen = _casters_and_fit(ctx, lp, rec, in_frustum, depth_min, rec_far)
+    if chosen is None:
         return
+    casters, fit = chosen
     # A directional shadow falls straight along the light: only where casters are, laterally.
     x0, y0 = np.maximum([x0, y0], lo[fit, :2].min(axis=0))
     x1, y1 = np.minimum([x1, y1], hi[fit, :2].max(axis=0))
@@ -476,12 +487,10 @@ def _plan_spot(ctx: _Ctx, lp: LightPlan) -> None:
     depth_min = np.where(
         np.all(depth > 0, axis=1), depth.min(axis=1), 0.0
     )
-    shadowless = _shadowless_planes(ctx, lp, rec)
-    casters = _select_casters(ctx, lp, in_frustum, depth_min, rec_far, shadowless)
-    fit = ctx.cast & in_frustum & (depth_min <= rec_far) & ~shadowless
-    if not fit.any():
-        lp.reason = "no_caster_in_frustum"
+    chosen = _casters_and_fit(ctx, lp, rec, in_frustum, depth_min, rec_far)
+    if chosen is None:
         return
+    casters, fit = chosen
     # Shadows lie within the casters' angular extent, when all of them are in front of the light.
     cc = lc[fit].reshape(-1, 3)
     if np.all(-cc[:, 2] > 0):
@@ -556,12 +565,10 @@ def _plan_cube(ctx: _Ctx, lp: LightPlan) -> None:
     if not used_faces:
         lp.reason = "no_visible_receiver"
         return
-    shadowless = _shadowless_planes(ctx, lp, rec)
-    casters = _select_casters(ctx, lp, caster_mask, near_dist, rec_far, shadowless)
-    fit = ctx.cast & caster_mask & (near_dist <= rec_far) & ~shadowless
-    if not fit.any():
-        lp.reason = "no_caster_in_frustum"
+    chosen = _casters_and_fit(ctx, lp, rec, caster_mask, near_dist, rec_far)
+    if chosen is None:
         return
+    casters, fit = chosen
     far = rec_far
     near = float(max(near_dist[fit].min() * 0.999, far * 1e-5))
     pixel = ctx.pixel_per_distance * ctx.receiver_distance(rec)

@@ -11,11 +11,8 @@ import pytest
 
 from conftest import load_model
 from renderer import RenderError, RenderParams, load_scene
-from renderer.camera import resolve_camera
+from renderer import testing as T
 from renderer.demo import demo_glb
-from renderer.lights import resolve_lights
-from renderer.metrics import shadow_metrics
-from renderer.reference import trace_reference
 
 pytestmark = pytest.mark.gl
 
@@ -30,17 +27,8 @@ MODELS = [
 
 
 def measure(renderer, scene, params: RenderParams):
-    """Render visibility and compare every light with the reference; returns (metrics, result)."""
-    params = params.model_copy(update={"outputs": sorted(set(params.outputs) | {"visibility"})})
-    result = renderer.render(scene, params)
-    camera = resolve_camera(params.camera, scene, params.width, params.height)
-    lights = resolve_lights(params.lights, scene)
-    ref = trace_reference(scene, camera, lights)
-    metrics = [
-        shadow_metrics(result.visibility[..., i], ref.visibility[..., i], ref.valid[..., i])
-        for i in range(len(lights))
-    ]
-    return metrics, result, ref
+    m = T.measure(renderer, scene, params)
+    return m.metrics, m.result, m.reference
 
 
 @pytest.mark.parametrize("name", MODELS)
