@@ -240,11 +240,12 @@ class _Ctx:
             rec = np.flatnonzero(self.receive)
         return rec
 
-    def map_size(self, needed: float) -> int:
+    def map_size(self, needed: float, cube: bool = False) -> int:
         """The request's map size, or for 'auto' the power of two giving ``needed`` texels."""
         size = self.params.shadows.map_size
         if size == "auto":
-            return _pow2_at_least(needed, MIN_AUTO_MAP, self.max_size)
+            top = max(self.max_size // 2, MIN_AUTO_MAP) if cube else self.max_size
+            return _pow2_at_least(needed, MIN_AUTO_MAP, top)
         return int(size)
 
     def receiver_distance(self, rec: np.ndarray) -> float:
@@ -573,7 +574,8 @@ def _plan_cube(ctx: _Ctx, lp: LightPlan) -> None:
     near = float(max(near_dist[fit].min() * 0.999, far * 1e-5))
     pixel = ctx.pixel_per_distance * ctx.receiver_distance(rec)
     d_light = float(np.median(cheb[rec].mean(axis=1).clip(min=near)))
-    size = ctx.map_size(2 * d_light / max(pixel, 1e-300))
+    # Six faces: an automatic size stops one power of two below the 2D maximum.
+    size = ctx.map_size(2 * d_light / max(pixel, 1e-300), cube=True)
     lp.kind = "cube"
     lp.face_views = face_views
     lp.faces = used_faces
