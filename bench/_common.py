@@ -25,7 +25,7 @@ from renderer import RenderParams, Scene, load_scene  # noqa: E402
 from renderer import testing  # noqa: E402
 from renderer.camera import Camera, pose_from_direction, resolve_camera  # noqa: E402
 from renderer.lights import Light, resolve_lights  # noqa: E402
-from renderer.params import CameraParams, LightParams  # noqa: E402
+from renderer.params import LightParams  # noqa: E402
 from renderer.scene import Material  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,9 +47,11 @@ def models_dir() -> Path:
     return path
 
 
-def results_dir() -> Path:
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    return RESULTS
+def results_dir(quick: bool = False) -> Path:
+    """``bench/results/``; smoke runs (``--quick``) write to ``bench/results/quick/`` instead."""
+    path = RESULTS / "quick" if quick else RESULTS
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 # --------------------------------------------------------------------------------------------
@@ -235,11 +237,12 @@ class Progress:
     def step(self, note: str = "", n: int = 1) -> None:
         self.done += n
         now = time.perf_counter()
+        if self.done >= self.total:
+            return  # close() draws the last line
         # Off a terminal every redraw would become a line of its own: draw every ~10 % only.
-        every = 0.1 if self._tty else max(self.total // 10, 1)
-        if self._tty and now - self._last < every and self.done < self.total:
+        if self._tty and now - self._last < 0.1:
             return
-        if not self._tty and self.done % every and self.done < self.total:
+        if not self._tty and self.done % max(self.total // 10, 1):
             return
         self._last = now
         self._draw(note)
@@ -291,6 +294,8 @@ class Timing:
         Seconds of each timed call, measured around it.
     stages : dict of str to list of float
         ``RenderResult.timings`` of each timed call, by stage.
+    last : object
+        What the last timed call returned (e.g. its RenderResult, for the plan report).
     """
 
     wall: list[float] = field(default_factory=list)

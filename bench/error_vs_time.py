@@ -1,7 +1,7 @@
 """Shadow error against run time over the shadow settings.
 
 Sweeps encoding (r8, rg8, rgb8, rgba8, depth) x map size (512, 1024, 2048, 4096, auto) x filter
-(hard, PCF 3x3) x bias mode over a scene set of the real models (with ground) and stress scenes
+(hard, PCF 3x3, and for the depth encoding PCF 1x1: one hardware bilinear 2x2 compare) x bias mode over a scene set of the real models (with ground) and stress scenes
 (grazing light 5 degrees above a plane, a spot light 100 scene sizes away with a narrow cone, the
 caster-on-ground scene at 1/1000 scale).
 
@@ -19,7 +19,7 @@ per-scene median times.
 
 Writes ``bench/results/error_vs_time.{csv,md,png}``; prints whether the default configuration
 (the shadow settings of ``RenderParams()``) is on the Pareto front of time against mean
-misclassified percentage.
+misclassified percentage. ``--quick`` writes to ``bench/results/quick/``.
 
 Run: ``PYTHONPATH=. .venv/bin/python bench/error_vs_time.py [--quick] [--repeats N]``
 """
@@ -44,7 +44,9 @@ from renderer.reference import trace_reference  # noqa: E402
 
 ENCODINGS = ("r8", "rg8", "rgb8", "rgba8", "depth")
 SIZES: tuple = (512, 1024, 2048, 4096, "auto")
-FILTERS = ("hard", "pcf")
+# pcf1: one tap; with the depth encoding that is the hardware's bilinear 2x2 compare, with the
+# packed encodings the same as hard (so it is swept for depth only).
+FILTERS = ("hard", "pcf1", "pcf3")
 BIAS_MODES: dict[str, dict] = {
     "slope": {},  # BiasParams() defaults
     "constant": {"slope": 0.0, "constant": 3.0},
@@ -64,9 +66,10 @@ QUICK = {
 def _default() -> tuple:
     """The default request's shadow settings as a sweep point (bias: the "slope" mode)."""
     sh = RenderParams().shadows
-    if sh.bias != BiasParams() or (sh.filter == "pcf" and sh.pcf_kernel != 3):
+    name = "hard" if sh.filter == "hard" else f"pcf{sh.pcf_kernel}"
+    if sh.bias != BiasParams() or name not in FILTERS:
         raise SystemExit("the default shadow settings are not a point of this sweep")
-    return (sh.encoding, sh.map_size, sh.filter, "slope")
+    return (sh.encoding, sh.map_size, name, "slope")
 
 
 DEFAULT = _default()
@@ -81,12 +84,13 @@ class Config:
 
     @property
     def name(self) -> str:
-        f = "pcf3" if self.filter == "pcf" else "hard"
-        return f"{self.encoding}/{self.size}/{f}/{self.bias}"
+        return f"{self.encoding}/{self.size}/{self.filter}/{self.bias}"
 
     def shadows(self) -> dict:
-        return {"encoding": self.encoding, "map_size": self.size, "filter": self.filter,
-                "pcf_kernel": 3, "bias": BIAS_MODES[self.bias]}
+        kernel = int(self.filter[3:]) if self.filter.startswith("pcf") else 3
+        return {"encoding": self.encoding, "map_size": self.size,
+                "filter": "hard" if self.filter == "hard" else "pcf", "pcf_kernel": kernel,
+                "bias": BIAS_MODES[self.bias]}
 
     @property
     def is_default(self) -> bool:
@@ -156,7 +160,7 @@ def plot(path, agg: list[dict], pyr: tuple[float, float] | None, ref_ms: float,
     from matplotlib.ticker import FuncFormatter, LogLocator
 
     colours = dict(zip(ENCODINGS, ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd")))
-    markers = {"hard": "o", "pcf": "s"}
+    markers = {"hard": "o", "pcf1": "^", "pcf3": "s"}
     fig, ax = plt.subplots(figsize=(10, 6.5), dpi=110)
     errs = [a["misclassified_pct"] for a in agg] + ([pyr[1]] if pyr else [])
     positive = [e for e in errs if e > 0]
@@ -206,14 +210,14 @@ def plot(path, agg: list[dict], pyr: tuple[float, float] | None, ref_ms: float,
     handles += [Line2D([], [], ls="", marker=m, color="gray", label=f) for f, m in markers.items()]
     handles += [Line2D([], [], color="black", label="Pareto front"),
                 Line2D([], [], ls="", marker="o", mfc="none", mec="red", ms=12, label="default")]
-    ax.legend(handles=handles, fontsize=8, loc="upper right", ncol=2)
+    ax.legend(handles=handles, fontsize=8, loc="lower left", ncol=2)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
 
 
 def run(quick: bool, repeats: int) -> None:
-    out_dir = C.results_dir()
+    out_dir = C.results_dir(quick)
     t_start = time.perf_counter()
     if quick:
         grid = (QUICK["encodings"], QUICK["sizes"], QUICK["filters"], QUICK["bias"])
@@ -221,7 +225,8 @@ def run(quick: bool, repeats: int) -> None:
     else:
         grid = (ENCODINGS, SIZES, FILTERS, tuple(BIAS_MODES))
         scene_names = SCENES
-    configs = [Config(*c) for c in itertools.product(*grid)]
+    configs = [Config(*c) for c in itertools.product(*grid)
+               if c[2] != "pcf1" or c[0] == "depth"]
     bench_scenes = [build_scene(n) for n in scene_names]
     n_dir = sum(bs.directional_only for bs in bench_scenes)
     bar = C.Progress(len(bench_scenes) * (len(configs) + 1) + n_dir, "error_vs_time")

@@ -136,7 +136,11 @@ class ShadowParams(_Model):
     )
     max_map_size: int = Field(default=4096, ge=16, le=16384)
     filter: Literal["hard", "pcf"] = "pcf"
-    pcf_kernel: int = Field(default=3, ge=1, le=9, description="odd kernel width in texels")
+    pcf_kernel: int = Field(
+        default=1, ge=1, le=9,
+        description="odd kernel width in taps; with the depth encoding each tap is a hardware "
+        "bilinear 2x2 compare",
+    )
     bias: BiasParams = Field(default_factory=BiasParams)
 
     @model_validator(mode="after")
@@ -186,6 +190,6 @@ EXAMPLE_PARAMS: dict = {
     "height": 480,
     "camera": {"eye": [3, 2.5, 4], "target": [0, 0.5, 0], "yfov_deg": 45},
     "lights": [{"type": "directional", "direction": [-0.4, -1.0, -0.3], "intensity": 1.0}],
-    "shadows": {"encoding": "depth", "map_size": "auto", "filter": "pcf", "pcf_kernel": 3},
+    "shadows": {"encoding": "depth", "map_size": "auto", "filter": "pcf", "pcf_kernel": 1},
     "outputs": ["color", "light_depth", "visibility"],
 }

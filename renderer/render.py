@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections import OrderedDict
 from collections.abc import Mapping
@@ -20,7 +21,7 @@ from OpenGL.error import GLError
 from .camera import resolve_camera
 from .camera_pass import MAX_LIGHTS, CameraPass
 from .encodings import debug_image
-from .errors import LimitError, RenderError, ShadowMapError
+from .errors import LimitError, RenderError, SceneError, ShadowMapError
 from .gpu import GLContext, GpuScene, check_gl
 from .light_pass import LightPass
 from .lights import resolve_lights
@@ -126,6 +127,7 @@ class Renderer:
         self.cache_bytes = cache_bytes
         self.cache_entries = cache_entries
         self._uploads: OrderedDict[str, GpuScene] = OrderedDict()
+        self._parsed: OrderedDict[str, Scene] = OrderedDict()  # by SHA-256 of file + resources
         self._closed = False
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -178,6 +180,29 @@ class Renderer:
             old.release()
         return gs, True, False
 
+    def _load(self, source: str | Path | bytes, resources: Mapping[str, bytes] | None) -> Scene:
+        """Parse a file, or take the parsed scene of the same bytes from the last few calls."""
+        try:
+            data = Path(source).read_bytes() if isinstance(source, (str, Path)) else bytes(source)
+        except OSError as exc:
+            raise SceneError(f"cannot read {source}: {exc.strerror}") from None
+        digest = hashlib.sha256(data)
+        for name in sorted(resources or {}):
+            digest.update(name.encode() + b"\0" + resources[name])
+        key = digest.hexdigest()
+        scene = self._parsed.get(key)
+        if scene is not None:
+            self._parsed.move_to_end(key)
+            return scene
+        file_type = Path(source).suffix if isinstance(source, (str, Path)) else None
+        scene = load_scene(data, file_type=file_type, resources=resources,
+                           max_triangles=self.limits.max_triangles)
+        if self.cache_entries > 0:
+            self._parsed[key] = scene
+            while len(self._parsed) > self.cache_entries:
+                self._parsed.popitem(last=False)
+        return scene
+
     def render(self, scene: Scene | str | Path | bytes, params: RenderParams | Mapping | None = None,
                *, resources: Mapping[str, bytes] | None = None) -> RenderResult:
         """Render a scene.
@@ -204,7 +229,7 @@ class Renderer:
             params = RenderParams.model_validate(params)
         timings: dict[str, float] = {}
         if not isinstance(scene, Scene):
-            scene = load_scene(scene, resources=resources, max_triangles=self.limits.max_triangles)
+            scene = self._load(scene, resources)
         if params.ground:
             scene = scene.with_ground()
         timings["load"] = time.perf_counter() - t0
