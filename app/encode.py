@@ -25,22 +25,22 @@ With ``multipart/mixed`` the extra values travel as part headers (``X-Depth-Near
 from __future__ import annotations
 
 import base64
-import io
 import json
 import math
 import secrets
+import struct
 import time
+import zlib
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from PIL import Image
 from pydantic import BaseModel, Field
 from starlette.responses import Response
 
 from renderer import RenderResult
 
-PNG_COMPRESS_LEVEL = 3  # zlib level: the default (6) costs much more time for little size
+PNG_COMPRESS_LEVEL = 1  # zlib level: the time of higher levels buys little size on renders
 MEDIA_PNG = "image/png"
 MEDIA_MULTIPART = "multipart/mixed"
 MEDIA_JSON = "application/json"
@@ -139,12 +139,35 @@ def choose_format(accept: str | None, outputs: list[str]) -> str | None:
 # --------------------------------------------------------------------------------------------
 
 
+_PNG_COLOUR_TYPE = {1: 0, 3: 2, 4: 6}  # grey, RGB, RGBA
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
 def png_bytes(image: np.ndarray) -> bytes:
-    """PNG of a uint8 (H, W), (H, W, 3), (H, W, 4) or uint16 (H, W) array."""
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(image)).save(buf, format="PNG",
-                                                      compress_level=PNG_COMPRESS_LEVEL)
-    return buf.getvalue()
+    """PNG of a uint8 (H, W), (H, W, 3), (H, W, 4) or uint16 (H, W) array.
+
+    Written directly (no per-row filter, zlib level 1): for a rendered frame this takes about a
+    third of the time of an encoder that tries every row filter, for files about a third larger.
+    """
+    a = np.asarray(image)
+    if a.dtype not in (np.uint8, np.uint16) or a.ndim not in (2, 3):
+        raise ValueError(f"cannot write a PNG of a {a.dtype} array of shape {a.shape}")
+    h, w = a.shape[:2]
+    channels = 1 if a.ndim == 2 else a.shape[2]
+    if channels not in _PNG_COLOUR_TYPE:
+        raise ValueError(f"cannot write a PNG with {channels} channels")
+    rows = np.ascontiguousarray(a, dtype=">u2" if a.dtype == np.uint16 else np.uint8)
+    rows = rows.reshape(h, -1).view(np.uint8)
+    raw = np.zeros((h, rows.shape[1] + 1), np.uint8)  # filter byte 0 (none) per row
+    raw[:, 1:] = rows
+    header = struct.pack(">IIBBBBB", w, h, 8 * a.dtype.itemsize, _PNG_COLOUR_TYPE[channels],
+                         0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header)
+            + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), PNG_COMPRESS_LEVEL))
+            + _png_chunk(b"IEND", b""))
 
 
 def visibility_u16(v: np.ndarray) -> np.ndarray:

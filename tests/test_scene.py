@@ -130,3 +130,23 @@ def test_khr_lights_punctual_are_read():
     assert light.type == "spot" and light.outer_cone == 0.5
     np.testing.assert_allclose(light.pose[:3, 3], [0, 5, 0])
     np.testing.assert_allclose(-light.pose[:3, 2], [0, -1, 0], atol=1e-6)  # looks down
+
+
+@pytest.mark.gl
+def test_vertex_colours_reach_the_picture(renderer):
+    import trimesh
+
+    from renderer import RenderParams
+
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    box.unmerge_vertices()
+    box.visual = trimesh.visual.ColorVisuals(box, vertex_colors=np.tile([255, 0, 0, 255], (len(box.vertices), 1)))
+    scene = trimesh.Scene(box)
+    loaded = load_scene(scene.export(file_type="glb"))
+    prim = loaded.primitives[0]
+    assert prim.colors is not None and np.allclose(prim.colors[:, :3], [1, 0, 0], atol=0.01)
+    r = renderer.render(loaded, RenderParams(lights=[{"direction": [-0.3, -1, -0.5]}], ambient=[0.5] * 3,
+                                             background=[0, 0, 0, 1], width=64, height=48))
+    covered = r.color.sum(axis=2) > 0
+    red, green = r.color[..., 0][covered].astype(int), r.color[..., 1][covered].astype(int)
+    assert covered.mean() > 0.1 and np.all(red > green + 50)
