@@ -542,3 +542,31 @@ class PyrenderBaseline:
         images = {"shadowed": sh.astype(np.uint8), "unshadowed": un.astype(np.uint8),
                   "ambient": amb.astype(np.uint8)}
         return vis, images
+
+
+def finish(out_dir: Path, stem: str, md: str, csv_rows: list[dict], blocks: Sequence[str],
+           notes: Sequence[str], elapsed: float, extra: Sequence[str] = ()) -> None:
+    """Write ``stem``.md and ``stem``.csv, print the tables and notes, and say what was written."""
+    (out_dir / f"{stem}.md").write_text(md)
+    write_csv(out_dir / f"{stem}.csv", csv_rows)
+    for block in blocks:
+        print(block)
+        print()
+    for n in notes:
+        print(n)
+    written = ", ".join([f"{stem}.csv", *extra])
+    print(f"\nwrote {out_dir / (stem + '.md')}, {written} ({elapsed:.0f} s)")
+
+
+def bench_main(doc: str, run: Callable[[bool, int], None], quick_help: str, quick_repeats: int,
+               argv: list[str] | None = None) -> None:
+    """The shared command line: ``--quick`` for a smoke run, ``--repeats N``."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help=quick_help)
+    ap.add_argument("--repeats", type=int, default=None,
+                    help=f"timed calls per variant (default {DEFAULT_REPEATS}, "
+                    f"quick {quick_repeats})")
+    args = ap.parse_args(argv)
+    run(args.quick, args.repeats or (quick_repeats if args.quick else DEFAULT_REPEATS))

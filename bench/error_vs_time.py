@@ -26,7 +26,6 @@ Run: ``PYTHONPATH=. .venv/bin/python bench/error_vs_time.py [--quick] [--repeats
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import math
 import sys
@@ -384,33 +383,16 @@ def run(quick: bool, repeats: int) -> None:
         f"Machine: {machine}. Run time {elapsed:.0f} s" + (" (--quick)." if quick else "."),
         "",
     ])
-    (out_dir / "error_vs_time.md").write_text(md)
-    C.write_csv(out_dir / "error_vs_time.csv", rows)
     title = (f"Shadow error vs time: {len(configs)} configurations, {len(bench_scenes)} scenes, "
              f"640x480, llvmpipe" + (" (quick)" if quick else ""))
     plot(out_dir / "error_vs_time.png", agg, (pyr_ms, pyr_err) if pyr_rows else None, ref_ms,
          title)
-
-    print(table)
-    print()
-    print(ps_table)
-    print()
-    for n in notes:
-        print(n)
-    print(f"\nwrote {out_dir / 'error_vs_time.md'}, error_vs_time.csv, error_vs_time.png "
-          f"({elapsed:.0f} s)")
+    C.finish(out_dir, "error_vs_time", md, rows, [table, ps_table], notes, elapsed,
+             extra=["error_vs_time.png"])
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="12 configurations on 3 scenes, 2 repeats (smoke run)")
-    ap.add_argument("--repeats", type=int, default=None,
-                    help="timed colour renders per configuration and scene "
-                    f"(default {C.DEFAULT_REPEATS}, quick 2)")
-    args = ap.parse_args(argv)
-    repeats = args.repeats or (2 if args.quick else C.DEFAULT_REPEATS)
-    run(args.quick, repeats)
+    C.bench_main(__doc__, run, "a few configurations on 3 scenes, 2 repeats (smoke run)", 2, argv)
 
 
 if __name__ == "__main__":

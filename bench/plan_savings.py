@@ -14,7 +14,6 @@ Run: ``PYTHONPATH=. .venv/bin/python bench/plan_savings.py [--quick] [--repeats 
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from collections.abc import Callable
@@ -199,25 +198,11 @@ def run(quick: bool, repeats: int) -> None:
         f"Machine: {machine}. Run time {elapsed:.0f} s" + (" (--quick)." if quick else "."),
         "",
     ])
-    (out_dir / "plan_savings.md").write_text(md)
-    C.write_csv(out_dir / "plan_savings.csv", csv_rows)
-    print(table)
-    print()
-    print(stage_table)
-    print()
-    for n in notes:
-        print(n)
-    print(f"\nwrote {out_dir / 'plan_savings.md'}, plan_savings.csv ({elapsed:.0f} s)")
+    C.finish(out_dir, "plan_savings", md, csv_rows, [table, stage_table], notes, elapsed)
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="three cases, 3 repeats (smoke run)")
-    ap.add_argument("--repeats", type=int, default=None,
-                    help=f"timed calls per variant (default {C.DEFAULT_REPEATS}, quick 3)")
-    args = ap.parse_args(argv)
-    repeats = args.repeats or (3 if args.quick else C.DEFAULT_REPEATS)
-    run(args.quick, repeats)
+    C.bench_main(__doc__, run, "three cases, 3 repeats (smoke run)", 3, argv)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ Run: ``PYTHONPATH=. .venv/bin/python bench/shadow_cost.py [--quick] [--repeats N
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
@@ -195,24 +194,12 @@ def run(quick: bool, repeats: int) -> None:
         + (" (--quick)." if quick else "."),
         "",
     ])
-    (out_dir / "shadow_cost.md").write_text(md)
-    C.write_csv(out_dir / "shadow_cost.csv", csv_rows)
-    print(table)
-    print()
-    for n in notes:
-        print(n)
-    print(f"\nwrote {out_dir / 'shadow_cost.md'}, shadow_cost.csv, shadow_mask_check.png "
-          f"({elapsed:.0f} s)")
+    C.finish(out_dir, "shadow_cost", md, csv_rows, [table], notes, elapsed,
+             extra=["shadow_mask_check.png"])
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="three scenes, 3 repeats (smoke run)")
-    ap.add_argument("--repeats", type=int, default=None,
-                    help=f"timed calls per variant (default {C.DEFAULT_REPEATS}, quick 3)")
-    args = ap.parse_args(argv)
-    repeats = args.repeats or (3 if args.quick else C.DEFAULT_REPEATS)
-    run(args.quick, repeats)
+    C.bench_main(__doc__, run, "three scenes, 3 repeats (smoke run)", 3, argv)
 
 
 if __name__ == "__main__":

@@ -104,7 +104,6 @@ class CameraPass:
         opaque, blended = [], []
         for inst in plan.visible:
             p, slot = gpu.slot_of[inst]
-            gp = gpu.primitives[p]
             mat = gpu.scene.primitives[gpu.scene.instances[inst].primitive].material
             (blended if mat.alpha_mode == "BLEND" else opaque).append((p, slot, inst))
         self._draw_group(gpu, _group(opaque), frame, units)
