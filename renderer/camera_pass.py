@@ -144,7 +144,9 @@ class CameraPass:
             self.variants.add(tuple(sorted(defines.items())))
             prog = self.programs.get(VERT, FRAG, defines)
             prog.use()
-            frame.set_frame_uniforms(prog, units)
+            if prog.id not in frame.ready:  # uniforms stay with the program: once per frame
+                frame.set_frame_uniforms(prog, units)
+                frame.ready.add(prog.id)
             prog.set("u_base_color", mat.base_color)
             if frame.has_uv(gp):
                 GL.glActiveTexture(GL.GL_TEXTURE0)
@@ -213,6 +215,7 @@ class _FrameState:
         self.plan, self.maps, self.params = plan, maps, params
         self.view_proj, self.eye, self.vis_targets = view_proj, eye, vis_targets
         self.generic = generic
+        self.ready: set[int] = set()  # programs whose frame uniforms are set
         lights = [lp.light for lp in plan.lights]
         self.n_2d = sum(1 for m in maps if m.plan.kind != "cube")
         self.n_cube = sum(1 for m in maps if m.plan.kind == "cube")
