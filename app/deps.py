@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from dataclasses import dataclass
@@ -14,9 +13,10 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.requests import ClientDisconnect
 
-from renderer import RenderParams
-from renderer.demo import DEMO_PARAMS, demo_glb
-from renderer.params import EXAMPLE_PARAMS
+from shadowmap.renderer import RenderParams
+from shadowmap.renderer.limits import check_request
+from shadowmap.renderer.demo import DEMO_PARAMS, demo_glb
+from shadowmap.renderer.params import EXAMPLE_PARAMS
 
 from .errors import ServiceError
 from .settings import Settings
@@ -26,7 +26,6 @@ from .upload import (
     ZIP_MAGIC,
     SceneUpload,
     check_content_length,
-    check_params_limits,
     parse_params,
     read_limited,
     scene_upload,
@@ -56,7 +55,7 @@ WorkerDep = Annotated[RenderWorker, Depends(get_worker)]
 def demo_upload() -> SceneUpload:
     """The built-in demo scene as an upload (built once per process)."""
     data = demo_glb()
-    return SceneUpload(data, "glb", {}, hashlib.sha256(data).hexdigest(), "demo.glb")
+    return SceneUpload(data, "glb", {}, "demo.glb")
 
 
 @dataclass
@@ -190,7 +189,8 @@ async def read_render_input(
         upload = await run_in_threadpool(scene_upload, scene[0], scene[1], settings, scene[2])
         if render_params is None:
             render_params = RenderParams()
-    check_params_limits(render_params, settings)
+    # The limits that need no scene, before the request takes a place in the queue.
+    check_request(render_params, settings.limits())
     return RenderInput(upload, render_params, t0, time.perf_counter() - t0)
 
 

@@ -38,7 +38,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 from starlette.responses import Response
 
-from renderer import RenderResult
+from shadowmap.renderer import RenderResult
 
 PNG_COMPRESS_LEVEL = 1  # zlib level: the time of higher levels buys little size on renders
 MEDIA_PNG = "image/png"

@@ -27,7 +27,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from renderer import (
+from shadowmap.renderer import (
     LimitError,
     ReferenceUnavailable,
     RenderError,

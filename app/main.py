@@ -2,9 +2,9 @@
 
 Run it with ``shadowmap serve`` (which calls :func:`run`), or directly::
 
-    uvicorn --factory app.main:create_app --port 8000
+    uvicorn --factory shadowmap.app.main:create_app --port 8000
 
-Settings come from ``SHADOWMAP_*`` environment variables, see :class:`app.settings.Settings`.
+Settings come from ``SHADOWMAP_*`` environment variables, see :class:`shadowmap.app.settings.Settings`.
 The GL platform is chosen by ``PYOPENGL_PLATFORM`` (``egl`` or ``osmesa``; probed when unset).
 """
 
@@ -21,8 +21,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-import renderer
-from renderer import RenderParams
+from shadowmap import __version__
+from shadowmap.renderer import RenderParams
 
 from .deps import demo_upload
 from .encode import RenderJSON
@@ -119,7 +119,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings : Settings, optional
         Defaults to reading ``SHADOWMAP_*`` from the environment.
     """
-    app = FastAPI(title="shadowmap-service", version=renderer.__version__,
+    app = FastAPI(title="shadowmap-service", version=__version__,
                   description=DESCRIPTION, lifespan=lifespan)
     app.state.settings = settings or Settings()
     app.state.worker = None
@@ -147,12 +147,12 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
     """
     import uvicorn
 
-    uvicorn.run("app.main:create_app", factory=True, host=host, port=port,
+    uvicorn.run("shadowmap.app.main:create_app", factory=True, host=host, port=port,
                 workers=workers if workers > 1 else None, log_level=log_level)
 
 
 def __getattr__(name: str) -> FastAPI:
-    # ``uvicorn app.main:app`` works too; the app is built on first access, not on import, so
+    # ``uvicorn shadowmap.app.main:app`` works too; the app is built on first access, not on import, so
     # importing this module reads no settings and starts nothing.
     if name == "app":
         return create_app()

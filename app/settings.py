@@ -9,7 +9,7 @@ from __future__ import annotations
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from renderer.camera_pass import MAX_LIGHTS
+from shadowmap.renderer.limits import MAX_LIGHTS, Limits
 
 
 class Settings(BaseSettings):
@@ -40,9 +40,9 @@ class Settings(BaseSettings):
         Each waiting render holds its upload (and unpacked zip) in memory, so the worst case is
         about ``queue_size * max_upload_bytes * (1 + zip_expansion)``.
     scene_cache_entries : int
-        Parsed scenes kept in memory by upload hash (0 disables the cache).
+        Scenes the renderer keeps parsed and uploaded, by content hash (0 disables both caches).
     gpu_cache_bytes : int
-        GPU memory the renderer may keep for uploaded scenes (0 disables its cache).
+        GPU memory the renderer may keep for uploaded scenes (0 disables the upload cache).
     startup_timeout : float
         Seconds to wait for the GL context at start-up before giving up.
     """
@@ -61,6 +61,11 @@ class Settings(BaseSettings):
     scene_cache_entries: int = Field(default=4, ge=0)
     gpu_cache_bytes: int = Field(default=256 * 2**20, ge=0)
     startup_timeout: float = Field(default=60.0, gt=0.0)
+
+    def limits(self) -> Limits:
+        """The renderer's :class:`~shadowmap.renderer.limits.Limits` from these settings."""
+        return Limits(max_pixels=self.max_pixels, max_map_size=self.max_map_size,
+                      max_lights=self.max_lights, max_triangles=self.max_triangles)
 
     @property
     def max_unzipped_bytes(self) -> int:

@@ -7,7 +7,6 @@ not a plain relative name inside the upload.
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import math
@@ -17,7 +16,7 @@ import zlib
 from dataclasses import dataclass, field
 from typing import Any
 
-from renderer import LimitError, RenderParams, SceneError
+from shadowmap.renderer import RenderParams, SceneError
 
 from .errors import ServiceError
 from .settings import Settings
@@ -40,7 +39,7 @@ RAW_SCENE_TYPES = {
 
 @dataclass
 class SceneUpload:
-    """One scene as uploaded, ready for :func:`renderer.load_scene`.
+    """One scene as uploaded, ready for :meth:`shadowmap.renderer.Renderer.load`.
 
     Attributes
     ----------
@@ -49,8 +48,6 @@ class SceneUpload:
     file_type : {"glb", "gltf"}
     resources : dict of str to bytes
         Other files of a ``.zip`` upload, by their path relative to the scene file.
-    key : str
-        SHA-256 of the upload as received (the worker's parsed-scene cache key).
     name : str
         File name, for messages.
     """
@@ -58,7 +55,6 @@ class SceneUpload:
     data: bytes
     file_type: str
     resources: dict[str, bytes] = field(default_factory=dict)
-    key: str = ""
     name: str = "scene"
 
 
@@ -125,7 +121,7 @@ def parse_params(text: str | bytes) -> RenderParams:
     ServiceError
         413 when the text is over :data:`MAX_PARAMS_BYTES`, 422 when it is not a JSON object.
     pydantic.ValidationError
-        When the object does not match :class:`renderer.RenderParams`.
+        When the object does not match :class:`shadowmap.renderer.RenderParams`.
     """
     if len(text) > MAX_PARAMS_BYTES:
         raise too_large("max_params_bytes", f"params is {len(text)} bytes, over the limit of "
@@ -139,21 +135,6 @@ def parse_params(text: str | bytes) -> RenderParams:
     return RenderParams.model_validate(obj)
 
 
-def check_params_limits(params: RenderParams, settings: Settings) -> None:
-    """The limits that need no scene, checked before a request takes a place in the queue.
-
-    The renderer checks them again (and the scene-dependent ones) on the GL thread.
-    """
-    if params.width * params.height > settings.max_pixels:
-        raise LimitError("max_pixels", f"{params.width}x{params.height} is over the limit of "
-                         f"{settings.max_pixels} pixels")
-    size = params.shadows.map_size
-    if size != "auto" and size > settings.max_map_size:
-        raise LimitError("max_map_size",
-                         f"map_size {size} is over the limit of {settings.max_map_size}")
-    if params.lights is not None and len(params.lights) > settings.max_lights:
-        raise LimitError("max_lights", f"{len(params.lights)} lights is over the limit of "
-                         f"{settings.max_lights}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -199,15 +180,14 @@ def scene_upload(data: bytes, filename: str | None, settings: Settings,
     if not data:
         raise SceneError("the scene file is empty")
     kind = _kind(data, filename, declared)
-    key = hashlib.sha256(data).hexdigest()
     name = filename or f"scene.{kind}"
     if kind != "zip":
-        return SceneUpload(data, kind, {}, key, name)
+        return SceneUpload(data, kind, {}, name)
     scene_name, scene_data, resources = unpack_zip(
         data, settings.max_unzipped_bytes, settings.max_zip_entries
     )
     ft = posixpath.splitext(scene_name.lower())[1][1:]
-    return SceneUpload(scene_data, ft, resources, key, f"{name}:{scene_name}")
+    return SceneUpload(scene_data, ft, resources, f"{name}:{scene_name}")
 
 
 def _entry_name(raw: str) -> str:

@@ -1,8 +1,8 @@
 """The GL thread: one renderer per process, fed through a bounded queue.
 
 A GL context belongs to the thread that created it, so each service process runs one dedicated
-thread that creates the :class:`renderer.Renderer`, parses scenes (keeping a small LRU of parsed
-scenes by upload hash) and renders them one at a time. Async routes submit a job and await its
+thread that creates the :class:`shadowmap.renderer.Renderer`, which parses scenes (keeping the
+last few by content hash) and renders them one at a time. Async routes submit a job and await its
 ``concurrent.futures.Future``; the event loop never blocks on GL work.
 
 A GL call cannot be interrupted. When a request's time limit passes while its render is running,
@@ -18,11 +18,10 @@ import math
 import queue
 import threading
 import time
-from collections import OrderedDict
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 
-from renderer import Limits, Renderer, RenderError, RenderParams, RenderResult, Scene, load_scene
+from shadowmap.renderer import Renderer, RenderError, RenderParams, RenderResult
 
 from .errors import ServiceError
 from .settings import Settings
@@ -64,19 +63,13 @@ class RenderWorker:
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
-        self.limits = Limits(
-            max_pixels=settings.max_pixels,
-            max_map_size=settings.max_map_size,
-            max_lights=settings.max_lights,
-            max_triangles=settings.max_triangles,
-        )
+        self.limits = settings.limits()
         self._queue: queue.Queue = queue.Queue(maxsize=settings.queue_size)
         self._thread = threading.Thread(target=self._run, name="shadowmap-gl", daemon=True)
         self._ready = threading.Event()
         self._stopping = False
         self._startup_error: BaseException | None = None
         self._renderer: Renderer | None = None
-        self._scenes: OrderedDict[str, Scene] = OrderedDict()
         self._info: dict = {}
         self._busy_since: float | None = None
         self._mean_seconds = 1.0  # running mean of render time, for Retry-After
@@ -204,7 +197,8 @@ class RenderWorker:
     # -- the GL thread -----------------------------------------------------------------------
 
     def _new_renderer(self) -> Renderer:
-        return Renderer(limits=self.limits, cache_bytes=self.settings.gpu_cache_bytes)
+        return Renderer(limits=self.limits, cache_bytes=self.settings.gpu_cache_bytes,
+                        cache_entries=self.settings.scene_cache_entries)
 
     def _run(self) -> None:
         try:
@@ -262,21 +256,11 @@ class RenderWorker:
         if self._renderer is None:
             raise RenderError("the renderer is not running")
         t0 = time.perf_counter()
-        scene, hit = self._scene(job.upload)
+        cache = self._renderer.scenes
+        hits = cache.hits
+        scene = self._renderer.load(job.upload.data, file_type=job.upload.file_type,
+                                    resources=job.upload.resources)
         parse = time.perf_counter() - t0
         result = self._renderer.render(scene, job.params)
-        return RenderOutcome(result, queue=job.started - job.submitted, parse=parse, cache_hit=hit)
-
-    def _scene(self, upload: SceneUpload) -> tuple[Scene, bool]:
-        """The parsed scene of an upload, from the LRU when the same bytes came before."""
-        scene = self._scenes.get(upload.key)
-        if scene is not None:
-            self._scenes.move_to_end(upload.key)
-            return scene, True
-        scene = load_scene(upload.data, file_type=upload.file_type, resources=upload.resources,
-                           max_triangles=self.settings.max_triangles)
-        if self.settings.scene_cache_entries > 0:
-            self._scenes[upload.key] = scene
-            while len(self._scenes) > self.settings.scene_cache_entries:
-                self._scenes.popitem(last=False)
-        return scene, False
+        return RenderOutcome(result, queue=job.started - job.submitted, parse=parse,
+                             cache_hit=cache.hits > hits)

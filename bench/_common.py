@@ -20,13 +20,12 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np  # noqa: E402
 
-import renderer  # noqa: E402  (selects the GL platform before pyrender/PyOpenGL load)
-from renderer import RenderParams, Scene, load_scene  # noqa: E402
-from renderer import testing  # noqa: E402
-from renderer.camera import Camera, pose_from_direction, resolve_camera  # noqa: E402
-from renderer.lights import Light, resolve_lights  # noqa: E402
-from renderer.params import LightParams  # noqa: E402
-from renderer.scene import Material  # noqa: E402
+from shadowmap.renderer import Renderer, RenderParams, Scene, load_scene  # noqa: E402
+from shadowmap.renderer import testing  # noqa: E402
+from shadowmap.renderer.camera import Camera, pose_from_direction, resolve_camera  # noqa: E402
+from shadowmap.renderer.lights import Light, resolve_lights  # noqa: E402
+from shadowmap.renderer.params import LightParams  # noqa: E402
+from shadowmap.renderer.scene import Material  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -337,7 +336,7 @@ def time_interleaved(calls: dict[str, Callable[[], object]], repeats: int = DEFA
     return out
 
 
-def time_render(r: renderer.Renderer, scene, params: RenderParams, repeats: int = DEFAULT_REPEATS,
+def time_render(r: Renderer, scene, params: RenderParams, repeats: int = DEFAULT_REPEATS,
                 warmup: int = 1) -> Timing:
     """Median-ready timings of ``r.render(scene, params)`` after ``warmup`` discarded calls."""
     return time_interleaved({"x": lambda: r.render(scene, params)}, repeats, warmup)["x"]
@@ -400,7 +399,7 @@ def code_state() -> str:
     return f"commit {head}" + (" + uncommitted changes in renderer/ or shaders/" if dirty else "")
 
 
-def machine_info(r: renderer.Renderer) -> str:
+def machine_info(r: Renderer) -> str:
     """One line naming the GL renderer, CPU count and load, for result footers."""
     info = r.info
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())

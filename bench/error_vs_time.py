@@ -36,10 +36,10 @@ from bench import _common as C  # first: selects the GL platform
 
 import numpy as np  # noqa: E402
 
-from renderer import RenderParams, Renderer  # noqa: E402
-from renderer.metrics import shadow_metrics  # noqa: E402
-from renderer.params import BiasParams  # noqa: E402
-from renderer.reference import trace_reference  # noqa: E402
+from shadowmap.renderer import RenderParams, Renderer  # noqa: E402
+from shadowmap.renderer.metrics import shadow_metrics  # noqa: E402
+from shadowmap.renderer.params import BiasParams  # noqa: E402
+from shadowmap.renderer.reference import trace_reference  # noqa: E402
 
 ENCODINGS = ("r8", "rg8", "rgb8", "rgba8", "depth")
 SIZES: tuple = (512, 1024, 2048, 4096, "auto")

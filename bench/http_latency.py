@@ -21,8 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-import renderer  # noqa: F401  (selects the GL platform before anything imports OpenGL)
-from renderer import Renderer, RenderParams, load_scene
+from shadowmap.renderer import Renderer, RenderParams, load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -74,7 +73,7 @@ class Server:
         self.port = free_port()
         env = dict(os.environ, SHADOWMAP_QUEUE_SIZE="64")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "renderer.cli", "serve", "--port", str(self.port),
+            [sys.executable, "-m", "shadowmap", "serve", "--port", str(self.port),
              "--workers", str(workers)],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=ROOT,
         )

@@ -1,6 +1,6 @@
 """What the render plan saves: ``optimize: true`` against ``optimize: false``, per omission rule.
 
-Each scene is built to exercise one rule of :mod:`renderer.plan` (objects outside the view,
+Each scene is built to exercise one rule of :mod:`shadowmap.renderer.plan` (objects outside the view,
 non-casters, a light that reaches nothing visible, cube faces without receivers, shader variants
 specialised to textured / untextured materials, outputs not requested); the real models exercise
 them all at once. The scene cache (the same bytes rendered twice) is compared with a renderer
@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 from bench import _common as C  # first: selects the GL platform
 
-from renderer import RenderParams, Renderer  # noqa: E402
-from renderer import testing as T  # noqa: E402
-from renderer.demo import DEMO_PARAMS, demo_glb  # noqa: E402
+from shadowmap.renderer import RenderParams, Renderer  # noqa: E402
+from shadowmap.renderer import testing as T  # noqa: E402
+from shadowmap.renderer.demo import DEMO_PARAMS, demo_glb  # noqa: E402
 
 CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
 LIGHT = {"type": "directional", "direction": [-0.5, -1.0, -0.3]}

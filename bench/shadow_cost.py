@@ -27,9 +27,9 @@ from bench import _common as C  # first: selects the GL platform
 
 import numpy as np  # noqa: E402
 
-from renderer import RenderParams, Renderer  # noqa: E402
-from renderer.metrics import shadow_metrics  # noqa: E402
-from renderer.reference import trace_reference  # noqa: E402
+from shadowmap.renderer import RenderParams, Renderer  # noqa: E402
+from shadowmap.renderer.metrics import shadow_metrics  # noqa: E402
+from shadowmap.renderer.reference import trace_reference  # noqa: E402
 
 TARGET_RATIO = 1.3
 QUICK_SCENES = ("BoxTextured", "caster_on_ground", "caster_1e-3")

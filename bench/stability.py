@@ -16,10 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-import renderer  # noqa: F401  (selects the GL platform before anything imports OpenGL)
-from renderer import Renderer, RenderParams
-from renderer import testing as T
-from renderer.params import ENCODINGS
+from shadowmap.renderer import Renderer, RenderParams
+from shadowmap.renderer import testing as T
+from shadowmap.renderer.params import ENCODINGS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}

@@ -1,14 +1,18 @@
-"""shadowmap-service renderer: two-pass shadow maps for glTF scenes in an offscreen GL context.
+"""The shadowmap library: two-pass shadow maps for glTF scenes in an offscreen GL context.
 
-The GL platform (EGL, else OSMesa) is chosen when this package is imported, before PyOpenGL
-binds to one; set ``PYOPENGL_PLATFORM`` to force it.
+Installed as ``shadowmap.renderer``; the documented imports are re-exported by ``shadowmap``.
+Importing it (the request model, the scene loader, the planner) touches no GL platform: the
+platform (EGL, else OSMesa; ``PYOPENGL_PLATFORM`` forces one) is selected when a
+:class:`Renderer` is created.
+
+Modules: ``params`` (the request model), ``scene`` (glTF loading), ``limits``, ``cache``,
+``camera`` and ``lights`` (resolving a request), ``plan`` (the render plan, no GL), ``gl``
+(context, programs, resources), ``passes`` (light pass, camera pass), ``render`` (the
+:class:`Renderer`), ``reference`` and ``metrics`` (ray-traced truth and the error against it),
+``testing`` (scene builders and measurement for tests and benchmarks).
 """
 
-from .platform import select_platform
-
-PLATFORM = select_platform()
-
-from .errors import (  # noqa: E402
+from .errors import (
     LimitError,
     ReferenceUnavailable,
     RenderError,
@@ -17,15 +21,14 @@ from .errors import (  # noqa: E402
     ShaderError,
     ShadowMapError,
 )
-from .params import RenderParams  # noqa: E402
-from .render import Limits, RenderResult, Renderer  # noqa: E402
-from .scene import Scene, load_scene  # noqa: E402
+from .limits import Limits
+from .params import RenderParams
+from .render import RenderResult, Renderer
+from .scene import Scene, load_scene
 
-__version__ = "0.1.0"
 __all__ = [
     "LimitError",
     "Limits",
-    "PLATFORM",
     "ReferenceUnavailable",
     "RenderError",
     "RenderParams",

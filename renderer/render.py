@@ -1,44 +1,38 @@
 """The renderer: load, plan, light pass, camera pass, read back.
 
->>> from renderer import Renderer, RenderParams, load_scene
+>>> from shadowmap import Renderer, RenderParams, load_scene
 >>> with Renderer() as r:                                        # doctest: +SKIP
 ...     result = r.render(load_scene("Duck.glb"), RenderParams(outputs=["color", "visibility"]))
+
+The GL modules (``gl``, ``passes``) are imported when a :class:`Renderer` is created, after the GL
+platform is selected: importing this module, the request model or the scene loader touches no GL
+platform.
 """
 
 from __future__ import annotations
 
-import hashlib
 import time
-from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from OpenGL import GL
-from OpenGL.error import GLError
 
-from .camera import resolve_camera
-from .camera_pass import MAX_LIGHTS, CameraPass
+from .cache import BoundedCache, content_key
+from .camera import Camera, resolve_camera
 from .encodings import debug_image
-from .errors import LimitError, RenderError, SceneError, ShadowMapError
-from .gpu import GLContext, GpuScene, check_gl
-from .light_pass import LightPass
-from .lights import resolve_lights
+from .errors import RenderError, RequestError, SceneError, ShadowMapError
+from .limits import Limits, check_lights, check_map_sizes, check_request, check_scene, max_map_size
+from .lights import Light, resolve_lights
 from .params import RenderParams
-from .plan import RenderPlan, check_limits, make_plan
+from .plan import RenderPlan, make_plan
 from .scene import Scene, load_scene
-from .shaders import ProgramCache
 
+if TYPE_CHECKING:
+    from .gl.resources import GpuScene
 
-@dataclass(frozen=True)
-class Limits:
-    """Upper bounds a renderer enforces on every request (:class:`LimitError` beyond them)."""
-
-    max_pixels: int = 4096 * 4096
-    max_map_size: int = 8192
-    max_lights: int = MAX_LIGHTS
-    max_triangles: int = 5_000_000
+__all__ = ["LightDepth", "Limits", "RenderResult", "Renderer"]
 
 
 @dataclass
@@ -110,15 +104,25 @@ class Renderer:
     Parameters
     ----------
     platform : {"egl", "osmesa"}, optional
+        Defaults to ``PYOPENGL_PLATFORM``, else EGL when it works, else OSMesa.
     limits : Limits, optional
     cache_bytes : int
-        Upper bound of GPU memory held by cached scene uploads (by content hash); 0 disables.
+        Upper bound of GPU memory held by cached scene uploads; 0 disables the upload cache.
     cache_entries : int
-        Upper bound of the number of cached scene uploads.
+        Scenes kept parsed and uploaded, by :func:`~shadowmap.renderer.cache.content_key`;
+        0 disables both caches.
     """
 
     def __init__(self, platform: str | None = None, *, limits: Limits | None = None,
                  cache_bytes: int = 256 * 2**20, cache_entries: int = 32) -> None:
+        from .gl.platform import select_platform
+
+        select_platform(platform)  # before anything imports PyOpenGL
+        from .gl.context import GLContext
+        from .gl.programs import ProgramCache
+        from .passes.camera_pass import CameraPass
+        from .passes.light_pass import LightPass
+
         self.limits = limits or Limits()
         self.context = GLContext(platform)
         self.programs = ProgramCache()
@@ -126,8 +130,11 @@ class Renderer:
         self.camera_pass = CameraPass(self.programs)
         self.cache_bytes = cache_bytes
         self.cache_entries = cache_entries
-        self._uploads: OrderedDict[str, GpuScene] = OrderedDict()
-        self._parsed: OrderedDict[str, Scene] = OrderedDict()  # by SHA-256 of file + resources
+        #: Parsed scenes by content key.
+        self.scenes: BoundedCache[Scene] = BoundedCache(cache_entries)
+        #: GPU uploads by the scene's key (freed when evicted).
+        self.uploads: BoundedCache[GpuScene] = BoundedCache(
+            cache_entries, cache_bytes, size=lambda g: g.nbytes, on_evict=lambda g: g.release())
         self._closed = False
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -139,9 +146,7 @@ class Renderer:
         self._closed = True
         try:
             self.context.make_current()
-            for gs in self._uploads.values():
-                gs.release()
-            self._uploads.clear()
+            self.uploads.clear()
             self.light_pass.release()
             self.camera_pass.release()
             self.programs.release()
@@ -151,57 +156,56 @@ class Renderer:
     def __enter__(self) -> Renderer:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     @property
-    def info(self) -> dict:
+    def info(self) -> dict[str, str]:
         return self.context.info()
 
-    # -- rendering ---------------------------------------------------------------------------
+    # -- loading -----------------------------------------------------------------------------
+
+    def load(self, source: str | Path | bytes, *, file_type: str | None = None,
+             resources: Mapping[str, bytes] | None = None) -> Scene:
+        """Parse a glTF file, or return the scene parsed from the same content before.
+
+        Parameters
+        ----------
+        source : path or bytes
+        file_type : {"glb", "gltf"}, optional
+            Taken from the path's suffix, else detected from the content.
+        resources : mapping of str to bytes, optional
+            External files of a ``.gltf``.
+
+        Raises
+        ------
+        SceneError, LimitError
+            As :func:`~shadowmap.renderer.load_scene`; ``max_triangles`` comes from
+            :attr:`limits`.
+        """
+        if isinstance(source, (str, Path)):
+            try:
+                data = Path(source).read_bytes()
+            except OSError as exc:
+                raise SceneError(f"cannot read {source}: {exc.strerror}") from None
+            file_type = file_type or Path(source).suffix
+        else:
+            data = bytes(source)
+        key = content_key(data, resources)
+        scene, _, _ = self.scenes.get_or_make(key, lambda: load_scene(
+            data, file_type=file_type, resources=resources, limits=self.limits, key=key))
+        return scene
 
     def _upload(self, scene: Scene) -> tuple[GpuScene, bool, bool]:
         """The scene's upload, from the cache when the same content came before.
 
         Returns (upload, kept in the cache, cache hit).
         """
-        if self.cache_bytes <= 0 or self.cache_entries <= 0 or not scene.key:
-            return GpuScene.upload(scene), False, False
-        gs = self._uploads.get(scene.key)
-        if gs is not None:
-            self._uploads.move_to_end(scene.key)
-            return gs, True, True
-        gs = self._uploads[scene.key] = GpuScene.upload(scene)
-        while len(self._uploads) > 1 and (
-            len(self._uploads) > self.cache_entries
-            or sum(g.nbytes for g in self._uploads.values()) > self.cache_bytes
-        ):
-            _, old = self._uploads.popitem(last=False)
-            old.release()
-        return gs, True, False
+        from .gl.resources import GpuScene
 
-    def _load(self, source: str | Path | bytes, resources: Mapping[str, bytes] | None) -> Scene:
-        """Parse a file, or take the parsed scene of the same bytes from the last few calls."""
-        try:
-            data = Path(source).read_bytes() if isinstance(source, (str, Path)) else bytes(source)
-        except OSError as exc:
-            raise SceneError(f"cannot read {source}: {exc.strerror}") from None
-        digest = hashlib.sha256(data)
-        for name in sorted(resources or {}):
-            digest.update(name.encode() + b"\0" + resources[name])
-        key = digest.hexdigest()
-        scene = self._parsed.get(key)
-        if scene is not None:
-            self._parsed.move_to_end(key)
-            return scene
-        file_type = Path(source).suffix if isinstance(source, (str, Path)) else None
-        scene = load_scene(data, file_type=file_type, resources=resources,
-                           max_triangles=self.limits.max_triangles)
-        if self.cache_entries > 0:
-            self._parsed[key] = scene
-            while len(self._parsed) > self.cache_entries:
-                self._parsed.popitem(last=False)
-        return scene
+        return self.uploads.get_or_make(scene.key, lambda: GpuScene.upload(scene))
+
+    # -- rendering ---------------------------------------------------------------------------
 
     def render(self, scene: Scene | str | Path | bytes, params: RenderParams | Mapping | None = None,
                *, resources: Mapping[str, bytes] | None = None) -> RenderResult:
@@ -210,7 +214,7 @@ class Renderer:
         Parameters
         ----------
         scene : Scene, path or bytes
-            A loaded scene, or a glTF file to load (see :func:`renderer.load_scene`).
+            A loaded scene, or a glTF file to load (see :meth:`load`).
         params : RenderParams or dict, optional
         resources : mapping of str to bytes, optional
             External files of a ``.gltf`` given as path or bytes.
@@ -219,24 +223,25 @@ class Renderer:
         ------
         SceneError, RequestError, LimitError, RenderError
         """
+        from OpenGL.error import GLError
+
         if self._closed:
             raise RenderError("the renderer is closed")
         self.context.make_current()
         t0 = time.perf_counter()
-        if params is None:
-            params = RenderParams()
-        elif not isinstance(params, RenderParams):
-            params = RenderParams.model_validate(params)
+        params = _as_params(params)
+        check_request(params, self.limits)
         timings: dict[str, float] = {}
         if not isinstance(scene, Scene):
-            scene = self._load(scene, resources)
+            scene = self.load(scene, resources=resources)
         if params.ground:
             scene = scene.with_ground()
         timings["load"] = time.perf_counter() - t0
-        check_limits(scene, params, self.limits)
-        if params.shadows.max_map_size > self.limits.max_map_size:
+        check_scene(scene, self.limits, params)
+        top = max_map_size(params, self.limits)
+        if params.shadows.max_map_size != top:
             params = params.model_copy(deep=True)
-            params.shadows.max_map_size = self.limits.max_map_size
+            params.shadows.max_map_size = top
         try:
             return self._render(scene, params, timings, t0)
         except ShadowMapError:
@@ -244,7 +249,12 @@ class Renderer:
         except GLError as exc:
             raise RenderError(f"OpenGL error: {exc}") from exc
 
-    def _render(self, scene: Scene, params: RenderParams, timings: dict, t0: float) -> RenderResult:
+    def _render(self, scene: Scene, params: RenderParams, timings: dict[str, float],
+                t0: float) -> RenderResult:
+        from OpenGL import GL
+
+        from .gl.context import check_gl
+
         t = time.perf_counter()
         gpu, kept, hit = self._upload(scene)
         timings["upload"] = time.perf_counter() - t
@@ -252,11 +262,10 @@ class Renderer:
             t = time.perf_counter()
             camera = resolve_camera(params.camera, scene, params.width, params.height)
             lights = resolve_lights(params.lights, scene)
-            if len(lights) > self.limits.max_lights:
-                raise LimitError("max_lights", f"{len(lights)} lights is over the limit of "
-                                 f"{self.limits.max_lights}")
+            check_lights(len(lights), self.limits)
             plan = make_plan(scene, camera, lights, gpu.origin, params)
-            self._check_map_sizes(plan)
+            check_map_sizes((lp.size for lp in plan.map_lights),
+                            min(self.context.max_texture_size, self.context.max_cube_size))
             timings["plan"] = time.perf_counter() - t
 
             t = time.perf_counter()
@@ -299,22 +308,17 @@ class Renderer:
         result.timings = {k: round(v, 6) for k, v in timings.items()}
         return result
 
-    def _check_map_sizes(self, plan: RenderPlan) -> None:
-        limit = min(self.context.max_texture_size, self.context.max_cube_size)
-        for lp in plan.map_lights:
-            if lp.size > limit:
-                raise LimitError("max_map_size", f"map size {lp.size} exceeds this GPU's limit {limit}")
-
     @staticmethod
-    def _plan_report(plan: RenderPlan, params: RenderParams, hit: bool) -> dict:
+    def _plan_report(plan: RenderPlan, params: RenderParams, hit: bool) -> dict[str, Any]:
         d = plan.to_dict()
         d["scene_cache"] = "hit" if hit else "miss"
         d["encoding"] = params.shadows.encoding
         d["filter"] = params.shadows.filter
         return d
 
-    def _reference_metrics(self, scene, camera, lights, params, result) -> list[dict]:
-        from .metrics import shadow_metrics
+    def _reference_metrics(self, scene: Scene, camera: Camera, lights: list[Light],
+                           params: RenderParams, result: RenderResult) -> list[dict[str, Any]]:
+        from .metrics import compare_all
         from .reference import trace_reference
 
         vis = result.visibility
@@ -324,11 +328,34 @@ class Renderer:
             vis = self.render(scene, again).visibility
         ref = trace_reference(scene, camera, lights)
         out = []
-        for i in range(len(lights)):
-            m = shadow_metrics(vis[..., i], ref.visibility[..., i], ref.valid[..., i]).to_dict()
-            m["reference_seconds"] = round(ref.seconds, 4)
-            out.append(m)
+        for m in compare_all(vis, ref):
+            d = m.to_dict()
+            d["reference_seconds"] = round(ref.seconds, 4)
+            out.append(d)
         return out
+
+
+def _as_params(params: RenderParams | Mapping | None) -> RenderParams:
+    """The request model from a model, a mapping or nothing (the defaults).
+
+    Raises
+    ------
+    RequestError
+        When a mapping does not validate (the library's own error, not pydantic's).
+    """
+    if params is None:
+        return RenderParams()
+    if isinstance(params, RenderParams):
+        return params
+    from pydantic import ValidationError
+
+    try:
+        return RenderParams.model_validate(params)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "params"
+        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+        raise RequestError(f"invalid params: {where}: {first['msg']}{more}") from exc
 
 
 def _variant_names(variants: set[tuple]) -> list[str]:

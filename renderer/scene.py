@@ -12,7 +12,6 @@ name (``../``, absolute paths, ``file:``, ``http:``) is refused.
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import math
@@ -25,7 +24,9 @@ from urllib.parse import unquote
 
 import numpy as np
 
+from .cache import content_key
 from .errors import LimitError, SceneError
+from .limits import Limits, check_scene
 
 GLB_MAGIC = b"glTF"
 
@@ -505,7 +506,8 @@ def load_scene(
     *,
     file_type: str | None = None,
     resources: Mapping[str, bytes] | None = None,
-    max_triangles: int | None = None,
+    limits: Limits | None = None,
+    key: str | None = None,
 ) -> Scene:
     """Load a glTF 2.0 scene.
 
@@ -517,8 +519,12 @@ def load_scene(
         Detected from the magic bytes when omitted.
     resources : mapping of str to bytes, optional
         External buffers and images of a ``.gltf``, by the relative name used in the file.
-    max_triangles : int, optional
-        Raise :class:`LimitError` when the scene draws more triangles than this.
+    limits : Limits, optional
+        Raise :class:`LimitError` when the scene breaks one (see
+        :func:`~shadowmap.renderer.limits.check_scene`).
+    key : str, optional
+        The content key of ``source`` and ``resources`` when the caller has computed it
+        (:func:`~shadowmap.renderer.cache.content_key`).
 
     Returns
     -------
@@ -545,9 +551,6 @@ def load_scene(
     ft = _detect_type(data, file_type)
     header = _read_header(data, ft)
     resolver = MappingResolver(resources)
-    digest = hashlib.sha256(data)
-    for name in sorted(resources or {}):
-        digest.update(name.encode() + b"\0" + resources[name])
 
     try:
         tm = trimesh.load(
@@ -595,12 +598,9 @@ def load_scene(
     if not instances:
         raise SceneError("the scene has no triangles to render")
     cameras, lights = _cameras_and_lights(header)
-    scene = Scene(primitives, instances, cameras, lights, key=digest.hexdigest())
-    if max_triangles is not None and scene.triangle_count > max_triangles:
-        raise LimitError(
-            "max_triangles",
-            f"the scene has {scene.triangle_count} triangles, over the limit of {max_triangles}",
-        )
+    scene = Scene(primitives, instances, cameras, lights, key=key or content_key(data, resources))
+    if limits is not None:
+        check_scene(scene, limits)
     return scene
 
 
@@ -630,5 +630,5 @@ def scene_from_meshes(meshes: list, names: list[str] | None = None) -> Scene:
         )
     if not instances:
         raise SceneError("the scene has no triangles to render")
-    key = hashlib.sha256(b"".join(p.positions.tobytes() + p.indices.tobytes() for p in primitives))
-    return Scene(primitives, instances, key=key.hexdigest())
+    key = content_key(b"".join(p.positions.tobytes() + p.indices.tobytes() for p in primitives))
+    return Scene(primitives, instances, key=key)

@@ -27,7 +27,7 @@ def models() -> Path:
 @pytest.fixture(scope="session")
 def renderer():
     """One GL context for the whole session (a GL context belongs to one thread)."""
-    from renderer import Renderer
+    from shadowmap.renderer import Renderer
 
     r = Renderer()
     yield r
@@ -35,7 +35,7 @@ def renderer():
 
 
 def load_model(models: Path, name: str, ground: bool = True):
-    from renderer import load_scene
+    from shadowmap.renderer import load_scene
 
     path = models / name
     resources = None

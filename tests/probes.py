@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from OpenGL import GL
 
-from renderer import encodings
-from renderer.gpu import Framebuffer
+from shadowmap.renderer import encodings
+from shadowmap.renderer.gl.resources import Framebuffer
 
 PROBE_VERT = ("fullscreen.vert",)
 

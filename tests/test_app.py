@@ -3,7 +3,7 @@
 Two servers run for the module, both with small limits set through ``SHADOWMAP_*``:
 
 - ``server``: the main one (queue of 32), for good renders, bad input and concurrency;
-- ``tiny``: queue of 1 and a 1 s render time limit, started through :func:`app.main.run`, for
+- ``tiny``: queue of 1 and a 1 s render time limit, started through :func:`shadowmap.app.main.run`, for
   the queue-full (503 + Retry-After) and time-limit (504) behaviour.
 """
 
@@ -87,9 +87,9 @@ class ServerProcess:
         full_env["PYTHONPATH"] = os.pathsep.join(p for p in paths if p)
         if via_run:
             cmd = [sys.executable, "-c",
-                   f"from app.main import run; run('127.0.0.1', {self.port}, 1, 'warning')"]
+                   f"from shadowmap.app.main import run; run('127.0.0.1', {self.port}, 1, 'warning')"]
         else:
-            cmd = [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app",
+            cmd = [sys.executable, "-m", "uvicorn", "--factory", "shadowmap.app.main:create_app",
                    "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "warning"]
         self.proc = subprocess.Popen(cmd, env=full_env, stdout=self.log, stderr=subprocess.STDOUT,
                                      cwd=tempfile.gettempdir())
@@ -286,13 +286,13 @@ def embedded_gltf() -> bytes:
     ("text/html", ["color"], None),
 ])
 def test_choose_format(accept, outputs, expected):
-    from app.encode import choose_format
+    from shadowmap.app.encode import choose_format
 
     assert choose_format(accept, outputs) == expected
 
 
 def test_16_bit_encodings():
-    from app.encode import depth_u16, visibility_u16
+    from shadowmap.app.encode import depth_u16, visibility_u16
 
     vis = visibility_u16(np.array([[0.0, 1.0, 0.5, np.nan]], np.float32))
     assert vis.tolist() == [[0, 65535, 32768, 0]]
@@ -306,7 +306,7 @@ def test_unexpected_error_is_json():
     """Handlers turn any exception into the JSON error shape (in-process, no GL needed)."""
     import asyncio
 
-    from app.main import create_app
+    from shadowmap.app.main import create_app
 
     app = create_app()
 

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.gl
 
 
 def shadowmap(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "renderer.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "shadowmap", *args], capture_output=True,
                           text=True, cwd=cwd, timeout=300)
 
 

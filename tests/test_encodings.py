@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from renderer import encodings
-from renderer.params import ENCODINGS
+from shadowmap.renderer import encodings
+from shadowmap.renderer.params import ENCODINGS
 
 PACKED = [e for e in ENCODINGS if e != "depth"]
 rng = np.random.default_rng(7)

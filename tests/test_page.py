@@ -54,7 +54,7 @@ def server_url():
     env["SHADOWMAP_MAX_PIXELS"] = str(1024 * 1024)
     log = tempfile.TemporaryFile()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app", "--host",
+        [sys.executable, "-m", "uvicorn", "--factory", "shadowmap.app.main:create_app", "--host",
          "127.0.0.1", "--port", str(port), "--log-level", "warning"],
         env=env, stdout=log, stderr=subprocess.STDOUT, cwd=tempfile.gettempdir(),
     )

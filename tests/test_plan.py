@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from conftest import load_model
-from renderer import RenderParams, load_scene
-from renderer import testing as T
-from renderer.demo import demo_glb
+from shadowmap.renderer import RenderParams, load_scene
+from shadowmap.renderer import testing as T
+from shadowmap.renderer.demo import demo_glb
 
 pytestmark = pytest.mark.gl
 

@@ -17,12 +17,12 @@ import pytest
 import trimesh
 from PIL import Image
 
-from renderer.camera import Camera, look_at
-from renderer.errors import ReferenceUnavailable
-from renderer.lights import Light
-from renderer.metrics import ShadowMetrics, compare_all, shadow_metrics
-from renderer.reference import ReferenceResult, trace_reference
-from renderer.scene import load_scene, scene_from_meshes
+from shadowmap.renderer.camera import Camera, look_at
+from shadowmap.renderer.errors import ReferenceUnavailable
+from shadowmap.renderer.lights import Light
+from shadowmap.renderer.metrics import ShadowMetrics, compare_all, shadow_metrics
+from shadowmap.renderer.reference import ReferenceResult, trace_reference
+from shadowmap.renderer.scene import load_scene, scene_from_meshes
 
 pytest.importorskip("embreex")
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from conftest import load_model
-from renderer import RenderError, RenderParams, load_scene
-from renderer import testing as T
-from renderer.demo import demo_glb
+from shadowmap.renderer import RenderError, RenderParams, load_scene
+from shadowmap.renderer import testing as T
+from shadowmap.renderer.demo import demo_glb
 
 pytestmark = pytest.mark.gl
 
@@ -122,7 +122,7 @@ def test_timings_cover_every_stage(renderer, demo):
 
 
 def test_close_is_idempotent_and_final():
-    from renderer import Renderer
+    from shadowmap.renderer import Renderer
 
     r = Renderer()
     r.close()
@@ -149,7 +149,7 @@ def test_context_refuses_other_threads(renderer, demo):
 def test_500_renders_do_not_grow_memory(renderer):
     import trimesh
 
-    from renderer.scene import scene_from_meshes
+    from shadowmap.renderer.scene import scene_from_meshes
 
     def scene(i):
         box = trimesh.creation.box(extents=(1, 1 + i * 1e-3, 1))
@@ -167,6 +167,6 @@ def test_500_renders_do_not_grow_memory(renderer):
     gc.collect()
     grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
     assert grown_mb < 40, f"RSS grew by {grown_mb:.1f} MB over 500 renders"
-    assert len(renderer._uploads) <= renderer.cache_entries
-    assert sum(g.nbytes for g in renderer._uploads.values()) <= renderer.cache_bytes
+    assert len(renderer.uploads) <= renderer.cache_entries
+    assert renderer.uploads.nbytes <= renderer.cache_bytes
     assert sum(len(v) for v in renderer.light_pass.pool.values()) <= renderer.light_pass.pool_size

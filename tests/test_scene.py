@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from renderer import LimitError, SceneError, load_scene
-from renderer.scene import MappingResolver
+from shadowmap.renderer import LimitError, Limits, SceneError, load_scene
+from shadowmap.renderer.scene import MappingResolver
 
 MODELS = ["AlphaBlendModeTest.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "Duck.glb", "cube.glb"]
 
@@ -111,7 +111,7 @@ def test_truncated_binary_gltf(models):
 
 def test_triangle_limit(models):
     with pytest.raises(LimitError) as info:
-        load_scene(models / "Duck.glb", max_triangles=100)
+        load_scene(models / "Duck.glb", limits=Limits(max_triangles=100))
     assert info.value.limit == "max_triangles"
 
 
@@ -136,7 +136,7 @@ def test_khr_lights_punctual_are_read():
 def test_vertex_colours_reach_the_picture(renderer):
     import trimesh
 
-    from renderer import RenderParams
+    from shadowmap.renderer import RenderParams
 
     box = trimesh.creation.box(extents=(1, 1, 1))
     box.unmerge_vertices()

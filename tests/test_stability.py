@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from renderer import RenderParams, RequestError
-from renderer import testing as T
+from shadowmap.renderer import RenderParams, RequestError
+from shadowmap.renderer import testing as T
 
 pytestmark = pytest.mark.gl
 
@@ -104,7 +104,7 @@ def test_spot_near_far_ratio_of_1e5(renderer):
     # A caster right in front of the light and receivers 1e5 times further away.
     import trimesh
 
-    from renderer.scene import scene_from_meshes
+    from shadowmap.renderer.scene import scene_from_meshes
 
     tiny = trimesh.creation.box(extents=(2e-5, 2e-5, 2e-5))
     tiny.apply_translation((0, 10 - 1e-4 - 1e-5, 0))
@@ -179,7 +179,7 @@ def test_non_finite_numbers_are_refused(request_):
 def test_scaled_and_sheared_poses_are_made_rigid(renderer, scene):
     pose = np.array(T_look := [[2, 0.3, 0, 4], [0, 2, 0, 4], [0, 0, 2, 6], [0, 0, 0, 1]], float)
     del T_look
-    from renderer.camera import orthonormalize_pose
+    from shadowmap.renderer.camera import orthonormalize_pose
 
     rigid = orthonormalize_pose(pose, "camera")
     np.testing.assert_allclose(rigid[:3, :3] @ rigid[:3, :3].T, np.eye(3), atol=1e-12)
@@ -218,7 +218,7 @@ def test_contact_shadow_without_gap_or_leak(renderer, scene):
 def test_coplanar_caster_and_receiver_has_no_acne(renderer):
     import trimesh
 
-    from renderer.scene import scene_from_meshes
+    from shadowmap.renderer.scene import scene_from_meshes
 
     ground = trimesh.Trimesh([[-3, 0, -3], [3, 0, -3], [3, 0, 3], [-3, 0, 3]], [[0, 2, 1], [0, 3, 2]])
     decal = trimesh.Trimesh([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], [[0, 2, 1], [0, 3, 2]])

@@ -8,7 +8,7 @@ from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 
-import renderer
+from shadowmap import DISTRIBUTION, __version__
 
 from ..deps import WorkerDep
 
@@ -55,5 +55,5 @@ async def healthz(worker: WorkerDep) -> JSONResponse:
 @router.get("/version", response_model=Version)
 async def version() -> Version:
     """The service's version."""
-    return Version(name="shadowmap-service", version=renderer.__version__,
+    return Version(name=DISTRIBUTION, version=__version__,
                    python=platform.python_version())

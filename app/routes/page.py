@@ -9,14 +9,14 @@ from fastapi import APIRouter
 from fastapi.responses import HTMLResponse, Response
 from starlette.concurrency import run_in_threadpool
 
-from renderer.demo import demo_glb
+from shadowmap.renderer.demo import demo_glb
 
 router = APIRouter(tags=["page"])
 
 
 @lru_cache(maxsize=1)
 def _page() -> str:
-    return files("app").joinpath("static/index.html").read_text(encoding="utf-8")
+    return files("shadowmap.app").joinpath("static/index.html").read_text(encoding="utf-8")
 
 
 @router.get("/", response_class=HTMLResponse, include_in_schema=False)

@@ -13,7 +13,7 @@ import ctypes.util
 import os
 import sys
 
-from .errors import RenderError
+from ..errors import RenderError
 
 PLATFORMS = ("egl", "osmesa")
 EGL_PLATFORM_DEVICE_EXT = 0x313F

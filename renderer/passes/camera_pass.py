@@ -12,17 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 from OpenGL import GL
 
-from . import encodings
-from .gpu import Framebuffer, GpuPrimitive, GpuScene
+from .. import encodings
+from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene
 from .light_pass import ShadowMap
-from .params import RenderParams
-from .plan import RenderPlan
-from .shaders import Program, ProgramCache
+from ..params import RenderParams
+from ..plan import RenderPlan
+from ..gl.programs import Program, ProgramCache
 
 VERT = ("camera_pass.vert",)
 FRAG = ("depth_encoding.glsl", "shadow_lookup.glsl", "camera_pass.frag")
 LIGHT_TYPES = {"directional": 0, "spot": 1, "point": 2}
-MAX_LIGHTS = 8
 # Attribute slots that no VAO enables: reading them yields the constant set with glVertexAttrib,
 # which is how the generic variant feeds white colours and (0, 0) UVs to primitives without them.
 SPARE_UV, SPARE_COLOR = 14, 15

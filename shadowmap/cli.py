@@ -1,7 +1,9 @@
-"""The ``shadowmap`` command: ``render`` a scene to files, ``serve`` the HTTP API.
+"""The ``shadowmap`` command: render a scene to files, or serve the HTTP API.
 
-Errors in the input (bad file, bad JSON, impossible values) exit with status 2 and one line on
-stderr; a GL failure exits with status 3.
+It sits above both the library and the service: ``render`` uses :mod:`shadowmap.renderer` only,
+``serve`` imports :mod:`shadowmap.app` when it runs (the ``server`` extra). Errors in the input
+(bad file, bad JSON, impossible values) exit with status 2 and one line on stderr; a GL failure
+exits with status 3; ``serve`` without the ``server`` extra exits with status 4.
 """
 
 from __future__ import annotations
@@ -41,9 +43,9 @@ def _render(args: argparse.Namespace) -> int:
     from PIL import Image
     from pydantic import ValidationError
 
-    from . import Renderer, RenderParams, load_scene
-    from .errors import LimitError, RenderError, ShadowMapError
-    from .scene import directory_resources
+    from .renderer import Renderer, RenderParams, load_scene
+    from .renderer.errors import RenderError, ShadowMapError
+    from .renderer.scene import directory_resources
 
     params: dict = {}
     if args.params:
@@ -79,7 +81,7 @@ def _render(args: argparse.Namespace) -> int:
             result = renderer.render(scene, request)
     except RenderError as exc:
         return _fail(str(exc), 3)
-    except (ShadowMapError, LimitError) as exc:
+    except ShadowMapError as exc:
         return _fail(str(exc))
     out.mkdir(parents=True, exist_ok=True)
     if result.color is not None:
@@ -104,27 +106,35 @@ def _render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _no_constants(name: str):
+def _no_constants(name: str) -> float:
     raise ValueError(f"{name} is not allowed (numbers must be finite)")
 
 
-def _jsonable(value):
+def _jsonable(value: object) -> object:
     if hasattr(value, "tolist"):
         return value.tolist()
     return str(value)
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from app.main import run
+    try:
+        from .app.main import run
+    except ImportError as exc:
+        return _fail(f"serving needs the server extra ({exc.name or exc} is missing): "
+                     "pip install 'shadowmap-service[server]'", 4)
 
     run(host=args.host, port=args.port, workers=args.workers)
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .params import EXAMPLE_PARAMS
+    from . import __version__
+    from .renderer.params import EXAMPLE_PARAMS
 
-    parser = argparse.ArgumentParser(prog="shadowmap", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="shadowmap",
+        description="Render glTF scenes with shadow maps, or serve them over HTTP.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     r = sub.add_parser(
         "render",

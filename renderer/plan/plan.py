@@ -18,11 +18,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import Camera, perspective, pose_from_direction
-from .errors import LimitError
-from .lights import Light
-from .params import RenderParams
-from .scene import Scene
+from ..camera import Camera, perspective, pose_from_direction
+from ..lights import Light
+from ..params import RenderParams
+from ..scene import Scene
 
 # Spot lights wider than this (half-angle) are shadowed with cube faces: a single perspective map
 # would spend most of its texels near the frustum's edges.
@@ -334,10 +333,7 @@ def make_plan(
 ) -> RenderPlan:
     """Decide the passes, frusta, map sizes and draw lists of one render.
 
-    Raises
-    ------
-    LimitError
-        Never here; limits are checked by the renderer.
+    Limits are checked before planning (:mod:`~shadowmap.renderer.limits`).
     """
     ctx = _Ctx(scene, camera, origin, params)
     n = len(scene.instances)
@@ -590,25 +586,3 @@ def _face_meets_cone(forward: np.ndarray, light: Light, cone_cos: float) -> bool
     face_half_diag = math.acos(1 / math.sqrt(3))
     angle = math.acos(float(np.clip(np.dot(forward, light.direction), -1, 1)))
     return angle < math.acos(max(min(cone_cos, 1.0), -1.0)) + face_half_diag
-
-
-def check_limits(scene: Scene, params: RenderParams, limits) -> None:
-    """Raise :class:`LimitError` when a request exceeds a configured limit."""
-    if limits is None:
-        return
-    if params.width * params.height > limits.max_pixels:
-        raise LimitError(
-            "max_pixels",
-            f"{params.width}x{params.height} is over the limit of {limits.max_pixels} pixels",
-        )
-    size = params.shadows.map_size
-    if size != "auto" and size > limits.max_map_size:
-        raise LimitError("max_map_size", f"map_size {size} is over the limit of {limits.max_map_size}")
-    n_lights = len(params.lights) if params.lights is not None else max(len(scene.lights), 1)
-    if n_lights > limits.max_lights:
-        raise LimitError("max_lights", f"{n_lights} lights is over the limit of {limits.max_lights}")
-    if scene.triangle_count > limits.max_triangles:
-        raise LimitError(
-            "max_triangles",
-            f"the scene has {scene.triangle_count} triangles, over the limit of {limits.max_triangles}",
-        )

@@ -12,11 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 from OpenGL import GL
 
-from . import encodings
-from .gpu import Framebuffer, GpuScene
-from .params import ShadowParams
-from .plan import LightPlan
-from .shaders import ProgramCache
+from .. import encodings
+from ..gl.resources import Framebuffer, GpuScene
+from ..params import ShadowParams
+from ..plan import LightPlan
+from ..gl.programs import ProgramCache
 
 VERT = ("light_pass.vert",)
 FRAG = ("depth_encoding.glsl", "light_pass.frag")

@@ -17,7 +17,7 @@ from importlib import resources
 import numpy as np
 from OpenGL import GL
 
-from .errors import ShaderError
+from ..errors import ShaderError
 
 Defines = tuple[tuple[str, str], ...]
 
@@ -26,7 +26,7 @@ Defines = tuple[tuple[str, str], ...]
 def shader_text(name: str) -> str:
     """Text of one file of the ``shaders`` package (works from a checkout and from a wheel)."""
     try:
-        return resources.files("shaders").joinpath(name).read_text(encoding="utf-8")
+        return resources.files("shadowmap.shaders").joinpath(name).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ShaderError(f"shader file {name!r} is not in the shaders package") from None
 
