@@ -153,6 +153,10 @@ class Renderer:
         finally:
             self.context.release()
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
     def __enter__(self) -> Renderer:
         return self
 

@@ -34,6 +34,35 @@ def renderer():
     r.close()
 
 
+def _gl_errors() -> list[int]:
+    from OpenGL import GL
+
+    errors = []
+    while (err := GL.glGetError()) != GL.GL_NO_ERROR and len(errors) < 16:
+        errors.append(int(err))
+    return errors
+
+
+@pytest.fixture(autouse=True)
+def no_gl_errors(request):
+    """Every test on the session's GL context leaves no GL error behind (moderngl's ``ctx``
+    fixture): errors recorded before the test are reported as the earlier test's, not this one's.
+    """
+    if "renderer" not in request.fixturenames:
+        yield
+        return
+    r = request.getfixturevalue("renderer")
+    r.context.make_current()
+    before = _gl_errors()
+    assert not before, f"GL errors left by an earlier test: {[hex(e) for e in before]}"
+    yield
+    if r.closed:
+        return
+    r.context.make_current()
+    after = _gl_errors()
+    assert not after, f"GL errors after the test: {[hex(e) for e in after]}"
+
+
 def load_model(models: Path, name: str, ground: bool = True):
     from shadowmap.renderer import load_scene
 

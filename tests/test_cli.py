@@ -10,14 +10,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-pytestmark = pytest.mark.gl
-
-
 def shadowmap(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "shadowmap", *args], capture_output=True,
                           text=True, cwd=cwd, timeout=300)
 
 
+@pytest.mark.gl
 def test_render_writes_every_output(models, tmp_path):
     params = tmp_path / "p.json"
     params.write_text(json.dumps({
@@ -51,7 +49,9 @@ def test_help_documents_the_json(models):
         (None, ["missing.glb"], "cannot read"),
         ("not json", ["{scene}", "--params", "{params}"], "not valid JSON"),
         ('{"width": 0}', ["{scene}", "--params", "{params}"], "width"),
-        ('{"lights": [{"direction": [0, 0, 0]}]}', ["{scene}", "--params", "{params}"], "zero length"),
+        # resolved against the scene, after the GL context exists
+        pytest.param('{"lights": [{"direction": [0, 0, 0]}]}', ["{scene}", "--params", "{params}"],
+                     "zero length", marks=pytest.mark.gl),
         ('{"width": NaN}', ["{scene}", "--params", "{params}"], "NaN"),
         (None, ["{bad}"], "glTF"),
     ],
@@ -67,3 +67,44 @@ def test_bad_input_exits_nonzero_with_one_line(models, tmp_path, setup, args, me
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], proc.stderr
+
+
+def test_version_and_module_entry_point():
+    from shadowmap import __version__
+
+    proc = shadowmap("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"shadowmap {__version__}"
+    assert __version__ != "0+unknown"  # read from the installed distribution's metadata
+
+
+def test_help_touches_no_gl_platform():
+    """``--help`` and the library's pure modules import neither PyOpenGL nor pyrender, and
+    leave PYOPENGL_PLATFORM alone: the platform is chosen when a Renderer is created."""
+    code = (
+        "import os, sys\n"
+        "os.environ.pop('PYOPENGL_PLATFORM', None)\n"
+        "import shadowmap, shadowmap.renderer.params, shadowmap.renderer.scene\n"
+        "import shadowmap.renderer.plan, shadowmap.renderer.limits, shadowmap.cli\n"
+        "shadowmap.cli.build_parser().format_help()\n"
+        "loaded = sorted(m for m in ('OpenGL', 'pyrender') if m in sys.modules)\n"
+        "assert not loaded, loaded\n"
+        "assert 'PYOPENGL_PLATFORM' not in os.environ\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_namespace_wins_over_a_users_own_app_package(tmp_path):
+    """A user's own ``app`` and ``renderer`` packages in the working directory do not shadow
+    ours: everything is installed under ``shadowmap``."""
+    for name in ("app", "renderer"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "__init__.py").write_text("raise ImportError('the user package')\n")
+    code = ("import shadowmap.app.main, shadowmap.renderer.render, shadowmap.cli; "
+            "print(shadowmap.app.main.__file__)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert str(tmp_path) not in proc.stdout
+    assert shadowmap("--version", cwd=tmp_path).returncode == 0

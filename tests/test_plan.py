@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import load_model
+from gltf_files import patch_glb
 from shadowmap.renderer import RenderParams, load_scene
 from shadowmap.renderer import testing as T
 from shadowmap.renderer.demo import demo_glb
@@ -65,19 +66,12 @@ def test_cast_shadow_false_in_gltf_extras_is_honoured(renderer, tmp_path):
                        transform=trimesh.transformations.translation_matrix((0, 1.0, 0)))
     glb = scene.export(file_type="glb")
     # Mark the box a non-caster the three.js way, in the node's extras.
-    import json
-    import struct
+    def box_casts_nothing(doc: dict) -> None:
+        for node in doc["nodes"]:
+            if node.get("name") == "box":
+                node["extras"] = {"castShadow": False}
 
-    length = struct.unpack_from("<I", glb, 12)[0]
-    doc = json.loads(glb[20:20 + length])
-    for node in doc["nodes"]:
-        if node.get("name") == "box":
-            node["extras"] = {"castShadow": False}
-    text = json.dumps(doc).encode()
-    text += b" " * (-len(text) % 4)
-    rest = glb[20 + length:]
-    out = b"glTF" + struct.pack("<II", 2, 20 + len(text) + len(rest))
-    out += struct.pack("<II", len(text), 0x4E4F534A) + text + rest
+    out = patch_glb(glb, box_casts_nothing)
     loaded = load_scene(out)
     flags = {i.name: i.cast_shadow for i in loaded.instances}
     assert flags["box"] is False and flags["ground"] is True
@@ -143,10 +137,15 @@ def test_outputs_not_requested_are_not_computed(renderer):
 
 def test_same_bytes_are_parsed_and_uploaded_once(renderer):
     data = demo_glb()
+    renderer.context.make_current()
+    renderer.scenes.clear()  # independent of what earlier tests rendered
+    renderer.uploads.clear()
     first = renderer.render(data, RenderParams(width=64, height=48))
+    hits = renderer.scenes.hits
     again = renderer.render(data, RenderParams(width=64, height=48))
+    assert first.plan["scene_cache"] == "miss"
     assert again.plan["scene_cache"] == "hit"
-    assert again.timings["upload"] < first.timings["upload"] or first.plan["scene_cache"] == "hit"
+    assert renderer.scenes.hits == hits + 1 and len(renderer.scenes) == 1
 
 
 def test_auto_map_size_follows_the_view(renderer):

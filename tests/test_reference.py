@@ -9,13 +9,14 @@ from __future__ import annotations
 import io
 import json
 import math
-import struct
 import sys
 
 import numpy as np
 import pytest
 import trimesh
 from PIL import Image
+
+from gltf_files import make_glb
 
 from shadowmap.renderer.camera import Camera, look_at
 from shadowmap.renderer.errors import ReferenceUnavailable
@@ -320,15 +321,6 @@ def test_blend_is_invisible_to_camera_and_casts_above_half(base_alpha, casts):
     assert (got == expected).mean() >= 0.995
 
 
-def _glb(gltf: dict, blob: bytes) -> bytes:
-    js = json.dumps(gltf).encode()
-    js += b" " * (-len(js) % 4)
-    blob += b"\0" * (-len(blob) % 4)
-    body = struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(blob), 0x004E4942)
-    body += blob
-    return b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body
-
-
 def test_gltf_texcoord_v_zero_is_top_image_row():
     """A hand-written glTF: TEXCOORD_0 v = 0 at z = -1; the image's top row is transparent."""
     rgba = np.zeros((2, 2, 4), np.uint8)
@@ -378,7 +370,7 @@ def test_gltf_texcoord_v_zero_is_top_image_row():
         "nodes": [{"mesh": 0}, {"mesh": 1}],
         "scenes": [{"nodes": [0, 1]}],
     }
-    scene = load_scene(_glb(gltf, blob), file_type="glb")
+    scene = load_scene(make_glb(gltf, blob), file_type="glb")
     assert any(p.material.alpha_mode == "MASK" and p.material.texture is not None
                for p in scene.primitives)
     cam = camera(eye=(0.5, 8.0, 3.0))

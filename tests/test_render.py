@@ -146,6 +146,35 @@ def test_context_refuses_other_threads(renderer, demo):
     assert errors and "thread" in str(errors[0])
 
 
+def test_map_pool_never_frees_a_map_the_frame_still_samples(renderer, demo):
+    """A frame with more maps than the framebuffer pool holds, at sizes the pool has not seen,
+    keeps every one of its maps alive until the camera pass has sampled them."""
+    lights = [{"direction": [-0.5, -1, 0.2]},
+              {"type": "spot", "position": [2, 4, 2], "target": [0, 0, 0], "outer_cone_deg": 40},
+              {"type": "point", "position": [-1.5, 3, 1.0]}]
+
+    def render(size):
+        return renderer.render(demo, RenderParams(camera=DEMO_CAMERA, lights=lights,
+                                                  outputs=["visibility"],
+                                                  shadows={"map_size": size}))
+
+    pool = renderer.light_pass
+    render(512)
+    expected = render(1024).visibility  # a pool large enough for both frames
+    saved = pool.pool_size
+    pool.release()
+    pool.pool_size = 2
+    try:
+        render(512)
+        got = render(1024)
+        held = [fb for fbs in pool.pool.values() for fb in fbs]
+        assert len(held) == 3 and all(fb.fbo for fb in held)  # this frame's maps, alive
+    finally:
+        pool.pool_size = saved
+    np.testing.assert_array_equal(got.visibility, expected)
+
+
+@pytest.mark.slow
 def test_500_renders_do_not_grow_memory(renderer):
     import trimesh
 

@@ -86,17 +86,26 @@ class LightPass:
             fb = Framebuffer(size, size, [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)],
                              (GL.GL_DEPTH_COMPONENT32F, False), cube=cube)
         self.pool.setdefault(key, []).append(fb)
-        self._trim()
+        self._trim(taken | {id(fb)})
         return fb
 
-    def _trim(self) -> None:
+    def _trim(self, keep: set[int]) -> None:
+        """Release the oldest framebuffers until the pool holds ``pool_size``, never one in
+        ``keep`` (the maps this frame has drawn, or is about to draw, and will sample): a frame
+        with more maps than ``pool_size`` grows the pool until a later frame needs fewer."""
         total = sum(len(v) for v in self.pool.values())
-        while total > self.pool_size:
-            key = next(iter(self.pool))
-            self.pool[key].pop(0).release()
-            if not self.pool[key]:
+        for key in list(self.pool):
+            fbs = self.pool[key]
+            for fb in list(fbs):
+                if total <= self.pool_size:
+                    return
+                if id(fb) in keep:
+                    continue
+                fbs.remove(fb)
+                fb.release()
+                total -= 1
+            if not fbs:
                 del self.pool[key]
-            total -= 1
 
     def render(self, gpu: GpuScene, plans: list[LightPlan], shadows: ShadowParams
                ) -> list[ShadowMap]:
@@ -126,6 +135,7 @@ class LightPass:
                 GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
                 self._draw_casters(gpu, lp, view, shadows)
             maps.append(ShadowMap(lp, fb, shadows.encoding))
+        self._trim(taken)
         return maps
 
     def _draw_casters(self, gpu: GpuScene, lp: LightPlan, view: np.ndarray,

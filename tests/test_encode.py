@@ -1,0 +1,61 @@
+"""The service's pure parts, without GL: response format negotiation, 16-bit encodings, and the
+JSON error shape of the app's handlers (in-process, no lifespan, so no GL thread)."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+import pytest
+
+from test_app import assert_error
+
+
+@pytest.mark.parametrize(("accept", "outputs", "expected"), [
+    (None, ["color"], "image/png"),
+    ("*/*", ["color", "depth"], "image/png"),
+    ("*/*", ["depth"], "multipart/mixed"),
+    ("application/json", ["color"], "application/json"),
+    ("image/*;q=0.5, application/json", ["color"], "application/json"),
+    ("multipart/mixed, image/png;q=0", ["color"], "multipart/mixed"),
+    ("image/png;q=0, */*", ["color"], "multipart/mixed"),
+    ("text/html", ["color"], None),
+])
+def test_choose_format(accept, outputs, expected):
+    from shadowmap.app.encode import choose_format
+
+    assert choose_format(accept, outputs) == expected
+
+
+def test_16_bit_encodings():
+    from shadowmap.app.encode import depth_u16, visibility_u16
+
+    vis = visibility_u16(np.array([[0.0, 1.0, 0.5, np.nan]], np.float32))
+    assert vis.tolist() == [[0, 65535, 32768, 0]]
+    depth, near, far = depth_u16(np.array([[2.0, 4.0, 3.0, np.nan]], np.float32))
+    assert (near, far) == (2.0, 4.0) and depth.tolist() == [[0, 65534, 32767, 65535]]
+    empty, near, far = depth_u16(np.full((2, 2), np.nan, np.float32))
+    assert near is None and far is None and (empty == 65535).all()
+
+
+def test_unexpected_error_is_json():
+    """Handlers turn any exception into the JSON error shape (in-process, no GL needed)."""
+    import asyncio
+
+    from shadowmap.app.main import create_app
+
+    app = create_app()
+
+    @app.get("/boom")
+    def boom():
+        raise RuntimeError("kaboom")
+
+    async def requests() -> list[httpx.Response]:
+        # ASGITransport runs no lifespan: there is no GL thread behind this app.
+        transport = httpx.ASGITransport(app=app, raise_app_exceptions=False)
+        async with httpx.AsyncClient(transport=transport, base_url="http://app") as c:
+            return [await c.get("/boom"), await c.post("/render"), await c.get("/version")]
+
+    boom_resp, render_resp, version_resp = asyncio.run(requests())
+    assert_error(boom_resp, 500, "internal_error")
+    assert_error(render_resp, 503, "unavailable")
+    assert "server-timing" in version_resp.headers
