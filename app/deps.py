@@ -10,12 +10,12 @@ from typing import Annotated
 
 from fastapi import Depends, Query, Request
 from starlette.concurrency import run_in_threadpool
-from starlette.datastructures import UploadFile
+from starlette.datastructures import FormData, UploadFile
 from starlette.requests import ClientDisconnect
 
 from shadowmap.renderer import RenderParams
-from shadowmap.renderer.limits import check_request
 from shadowmap.renderer.demo import DEMO_PARAMS, demo_glb
+from shadowmap.renderer.limits import check_request
 from shadowmap.renderer.params import EXAMPLE_PARAMS
 
 from .errors import ServiceError
@@ -83,7 +83,7 @@ def _media_type(request: Request) -> str:
     return request.headers.get("content-type", "").split(";")[0].strip().lower()
 
 
-async def _form(request: Request, body: bytes, max_part: int):
+async def _form(request: Request, body: bytes, max_part: int) -> FormData:
     """Parse a form from the already-read (size-checked) body."""
     sent = False
 

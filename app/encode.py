@@ -31,6 +31,7 @@ import secrets
 import struct
 import time
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -120,7 +121,7 @@ def _quality(offer: str, ranges: list[tuple[str, float]]) -> float:
     return best if best_rank >= 0 else 0.0
 
 
-def choose_format(accept: str | None, outputs: list[str]) -> str | None:
+def choose_format(accept: str | None, outputs: Sequence[str]) -> str | None:
     """The response media type for an ``Accept`` header, or None when none is acceptable.
 
     Among equally acceptable types PNG wins when the colour image was requested (so plain
@@ -195,7 +196,7 @@ def depth_u16(d: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
     return out, near, far
 
 
-def encode_outputs(result: RenderResult, names: list[str]) -> list[EncodedImage]:
+def encode_outputs(result: RenderResult, names: Sequence[str]) -> list[EncodedImage]:
     """Encode the requested outputs of a render as PNG images.
 
     Parameters
@@ -322,7 +323,7 @@ def plan_header(plan: dict[str, Any]) -> str:
 RENDER_STAGES = ("upload", "plan", "light", "camera", "readback", "reference")
 
 
-def build_response(media: str, result: RenderResult, outputs: list[str],
+def build_response(media: str, result: RenderResult, outputs: Sequence[str],
                    before: dict[str, float], notes: dict[str, str], started: float) -> Response:
     """The HTTP response of a finished render, with ``Server-Timing`` and ``X-Render-Plan``.
 

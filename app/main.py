@@ -4,7 +4,8 @@ Run it with ``shadowmap serve`` (which calls :func:`run`), or directly::
 
     uvicorn --factory shadowmap.app.main:create_app --port 8000
 
-Settings come from ``SHADOWMAP_*`` environment variables, see :class:`shadowmap.app.settings.Settings`.
+Settings come from ``SHADOWMAP_*`` environment variables, see
+:class:`shadowmap.app.settings.Settings`.
 The GL platform is chosen by ``PYOPENGL_PLATFORM`` (``egl`` or ``osmesa``; probed when unset).
 """
 
@@ -152,8 +153,8 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
 
 
 def __getattr__(name: str) -> FastAPI:
-    # ``uvicorn shadowmap.app.main:app`` works too; the app is built on first access, not on import, so
-    # importing this module reads no settings and starts nothing.
+    # ``uvicorn shadowmap.app.main:app`` works too; the app is built on first access, not on
+    # import, so importing this module reads no settings and starts nothing.
     if name == "app":
         return create_app()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,6 +13,7 @@ import math
 import posixpath
 import zipfile
 import zlib
+from collections.abc import AsyncIterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -80,7 +81,7 @@ def check_content_length(header: str | None, limit: int) -> None:
                         f"the request body of {declared} bytes is over the limit of {limit} bytes")
 
 
-async def read_limited(chunks, limit: int) -> bytes:
+async def read_limited(chunks: AsyncIterable[bytes], limit: int) -> bytes:
     """Collect an async stream of byte chunks, failing as soon as it grows past ``limit``.
 
     Counting matters even after :func:`check_content_length`: a chunked request declares no size.

@@ -137,7 +137,8 @@ class RenderWorker:
 
     # -- submitting --------------------------------------------------------------------------
 
-    def submit(self, upload: SceneUpload, params: RenderParams) -> tuple[RenderJob, Future]:
+    def submit(self, upload: SceneUpload,
+               params: RenderParams) -> tuple[RenderJob, Future[RenderOutcome]]:
         """Queue a render without waiting.
 
         Raises
@@ -148,7 +149,8 @@ class RenderWorker:
         if not self.alive:
             raise ServiceError(503, "unavailable", "the renderer is not running",
                                headers={"Retry-After": "10"})
-        job, fut = RenderJob(upload, params), Future()
+        job = RenderJob(upload, params)
+        fut: Future[RenderOutcome] = Future()
         try:
             self._queue.put_nowait((job, fut))
         except queue.Full:
@@ -262,5 +264,6 @@ class RenderWorker:
                                     resources=job.upload.resources)
         parse = time.perf_counter() - t0
         result = self._renderer.render(scene, job.params)
+        assert job.started is not None  # _run sets it before executing the job
         return RenderOutcome(result, queue=job.started - job.submitted, parse=parse,
                              cache_hit=cache.hits > hits)

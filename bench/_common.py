@@ -20,11 +20,17 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np  # noqa: E402
 
-from shadowmap.renderer import Renderer, RenderParams, Scene, load_scene  # noqa: E402
-from shadowmap.renderer import testing  # noqa: E402
-from shadowmap.renderer.camera import Camera, pose_from_direction, resolve_camera  # noqa: E402
+from shadowmap.renderer import (  # noqa: E402
+    Renderer,
+    RenderParams,
+    Scene,
+    load_scene,
+    testing,
+)
+from shadowmap.renderer.camera import Camera, resolve_camera  # noqa: E402
 from shadowmap.renderer.lights import Light, resolve_lights  # noqa: E402
 from shadowmap.renderer.params import LightParams  # noqa: E402
+from shadowmap.renderer.plan.geometry import pose_from_direction  # noqa: E402
 from shadowmap.renderer.scene import Material  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -532,7 +538,7 @@ class PyrenderBaseline:
         try:
             amb = self.render(ps, False).astype(np.float32)
         finally:
-            for lt, v in zip(ps.light, saved):
+            for lt, v in zip(ps.light, saved, strict=True):
                 lt.intensity = v
         contrib = (un - amb).max(axis=2)
         lost = (un - sh).max(axis=2)

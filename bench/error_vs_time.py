@@ -1,7 +1,8 @@
 """Shadow error against run time over the shadow settings.
 
 Sweeps encoding (r8, rg8, rgb8, rgba8, depth) x map size (512, 1024, 2048, 4096, auto) x filter
-(hard, PCF 3x3, and for the depth encoding PCF 1x1: one hardware bilinear 2x2 compare) x bias mode over a scene set of the real models (with ground) and stress scenes
+(hard, PCF 3x3, and for the depth encoding PCF 1x1: one hardware bilinear 2x2 compare) x bias
+mode over a scene set of the real models (with ground) and stress scenes
 (grazing light 5 degrees above a plane, a spot light 100 scene sizes away with a narrow cone, the
 caster-on-ground scene at 1/1000 scale).
 
@@ -32,12 +33,11 @@ import sys
 import time
 from dataclasses import dataclass
 
-from bench import _common as C  # first: selects the GL platform
-
 import numpy as np  # noqa: E402
 
-from shadowmap.renderer import RenderParams, Renderer  # noqa: E402
-from shadowmap.renderer.metrics import shadow_metrics  # noqa: E402
+from bench import _common as C  # before shadowmap: selects the GL platform
+from shadowmap.renderer import Renderer, RenderParams  # noqa: E402
+from shadowmap.renderer.metrics import compare_all, shadow_metrics  # noqa: E402
 from shadowmap.renderer.params import BiasParams  # noqa: E402
 from shadowmap.renderer.reference import trace_reference  # noqa: E402
 
@@ -114,8 +114,7 @@ def pareto(points: list[tuple[float, float]]) -> list[bool]:
 
 def light_mean(vis: np.ndarray, ref) -> dict:
     """Metrics of every light, averaged over lights (the scenes here have one each)."""
-    ms = [shadow_metrics(vis[..., k], ref.visibility[..., k], ref.valid[..., k]).to_dict()
-          for k in range(vis.shape[2])]
+    ms = [m.to_dict() for m in compare_all(vis, ref)]
     out = {}
     for key in ("iou", "misclassified_pct", "false_shadow_pct", "missed_shadow_pct",
                 "edge_distance_px"):
@@ -135,7 +134,7 @@ def pyrender_point(bench_scenes: list[C.BenchScene], refs: dict, repeats: int,
             if not bs.directional_only:
                 continue
             ps = pb.build(bs)
-            t = C.time_interleaved({"sh": lambda: pb.render(ps, True)}, repeats)["sh"]
+            t = C.time_interleaved({"sh": lambda ps=ps: pb.render(ps, True)}, repeats)["sh"]
             vis, _ = pb.visibility(ps)
             ref = refs[bs.name]
             m = shadow_metrics(vis, ref.visibility[..., 0], ref.valid[..., 0])
@@ -158,7 +157,8 @@ def plot(path, agg: list[dict], pyr: tuple[float, float] | None, ref_ms: float,
     from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter, LogLocator
 
-    colours = dict(zip(ENCODINGS, ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd")))
+    colours = dict(zip(ENCODINGS, ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"),
+                       strict=True))
     markers = {"hard": "o", "pcf1": "^", "pcf3": "s"}
     fig, ax = plt.subplots(figsize=(10, 6.5), dpi=110)
     errs = [a["misclassified_pct"] for a in agg] + ([pyr[1]] if pyr else [])
@@ -280,7 +280,8 @@ def run(quick: bool, repeats: int) -> None:
             "misclassified_pct": float(np.mean([x["misclassified_pct"] for x in rs])),
             "worst_misclassified_pct": float(np.max([x["misclassified_pct"] for x in rs])),
         })
-    for a, on in zip(agg, pareto([(a["total_ms"], a["misclassified_pct"]) for a in agg])):
+    for a, on in zip(agg, pareto([(a["total_ms"], a["misclassified_pct"]) for a in agg]),
+                     strict=True):
         a["pareto"] = on
     agg.sort(key=lambda a: a["total_ms"])
     ref_ms = float(np.mean([ref.seconds * 1e3 for ref in refs.values()]))

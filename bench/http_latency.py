@@ -163,7 +163,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"{r['throughput']:.1f} |")
     lines += ["", f"{n} sequential requests and {2 * n} concurrent ones per row; multipart upload "
               f"of the .glb, PNG response. Target: HTTP adds at most 25 % at p50. "
-              f"{os.cpu_count()} CPU cores, PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM')}."]
+              f"{os.cpu_count()} CPU cores, "
+              f"PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM')}."]
     text = "\n".join(lines)
     print(text)
     if not args.quick:

@@ -1,10 +1,10 @@
 """What the render plan saves: ``optimize: true`` against ``optimize: false``, per omission rule.
 
-Each scene is built to exercise one rule of :mod:`shadowmap.renderer.plan` (objects outside the view,
-non-casters, a light that reaches nothing visible, cube faces without receivers, shader variants
-specialised to textured / untextured materials, outputs not requested); the real models exercise
-them all at once. The scene cache (the same bytes rendered twice) is compared with a renderer
-whose cache is off. Times are medians of repeated calls after a warm-up, the two variants
+Each scene is built to exercise one rule of :mod:`shadowmap.renderer.plan` (objects outside the
+view, non-casters, a light that reaches nothing visible, cube faces without receivers, shader
+variants specialised to textured / untextured materials, outputs not requested); the real models
+exercise them all at once. The scene cache (the same bytes rendered twice) is compared with a
+renderer whose cache is off. Times are medians of repeated calls after a warm-up, the two variants
 interleaved; per-stage medians and what the plan reports as left out are listed too.
 
 Writes ``bench/results/plan_savings.{md,csv}`` (``--quick``: ``bench/results/quick/``).
@@ -20,8 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from bench import _common as C  # first: selects the GL platform
-
-from shadowmap.renderer import RenderParams, Renderer  # noqa: E402
+from shadowmap.renderer import Renderer, RenderParams  # noqa: E402
 from shadowmap.renderer import testing as T  # noqa: E402
 from shadowmap.renderer.demo import DEMO_PARAMS, demo_glb  # noqa: E402
 
@@ -112,13 +111,13 @@ def run(quick: bool, repeats: int) -> None:
             if case.cache:
                 # Both render the same bytes; only one renderer may keep the upload.
                 calls: dict[str, Callable] = {
-                    "on": lambda: r.render(case.scene, on),
-                    "off": lambda: uncached.render(case.scene, on),
+                    "on": lambda case=case, on=on: r.render(case.scene, on),
+                    "off": lambda case=case, on=on: uncached.render(case.scene, on),
                 }
             else:
                 off = RenderParams.model_validate({**case.params, "optimize": False})
-                calls = {"on": lambda: r.render(case.scene, on),
-                         "off": lambda: r.render(case.scene, off)}
+                calls = {"on": lambda case=case, on=on: r.render(case.scene, on),
+                         "off": lambda case=case, off=off: r.render(case.scene, off)}
             t = C.time_interleaved(calls, repeats)
             on_ms, off_ms = t["on"].ms(), t["off"].ms()
             saved = off_ms - on_ms

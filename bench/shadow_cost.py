@@ -23,12 +23,11 @@ import math
 import sys
 import time
 
-from bench import _common as C  # first: selects the GL platform
-
 import numpy as np  # noqa: E402
 
-from shadowmap.renderer import RenderParams, Renderer  # noqa: E402
-from shadowmap.renderer.metrics import shadow_metrics  # noqa: E402
+from bench import _common as C  # before shadowmap: selects the GL platform
+from shadowmap.renderer import Renderer, RenderParams  # noqa: E402
+from shadowmap.renderer.metrics import compare_all, shadow_metrics  # noqa: E402
 from shadowmap.renderer.reference import trace_reference  # noqa: E402
 
 TARGET_RATIO = 1.3
@@ -45,8 +44,7 @@ def scenes(quick: bool) -> list[C.BenchScene]:
 
 def mean_iou(vis: np.ndarray, ref) -> float:
     """Mean over lights of the shadow IoU of ``vis`` (H, W, L) against the reference."""
-    ious = [shadow_metrics(vis[..., k], ref.visibility[..., k], ref.valid[..., k]).iou
-            for k in range(vis.shape[2])]
+    ious = [m.iou for m in compare_all(vis, ref)]
     return float(np.mean(ious))
 
 
@@ -82,7 +80,8 @@ def run(quick: bool, repeats: int) -> None:
             p_sh = bs.params()
             p_un = bs.params(lights=C.without_shadows(bs.lights))
             ours = C.time_interleaved(
-                {"sh": lambda: r.render(bs.scene, p_sh), "un": lambda: r.render(bs.scene, p_un)},
+                {"sh": lambda bs=bs, p_sh=p_sh: r.render(bs.scene, p_sh),
+                 "un": lambda bs=bs, p_un=p_un: r.render(bs.scene, p_un)},
                 repeats,
             )
             camera, lights = bs.resolved()
@@ -95,7 +94,8 @@ def run(quick: bool, repeats: int) -> None:
             if bs.directional_only:
                 ps = pb.build(bs)
                 pyr = C.time_interleaved(
-                    {"sh": lambda: pb.render(ps, True), "un": lambda: pb.render(ps, False)},
+                    {"sh": lambda ps=ps: pb.render(ps, True),
+                     "un": lambda ps=ps: pb.render(ps, False)},
                     repeats,
                 )
                 pr_sh, pr_un = pyr["sh"].ms(), pyr["un"].ms()

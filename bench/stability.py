@@ -45,7 +45,8 @@ def cases(quick: bool):
         ("spot light 100x scene size", base, dict(camera=CAMERA, lights=[_far_spot(600)]), "iou"),
         ("spot light 1000x scene size", base, dict(camera=CAMERA, lights=[_far_spot(6000)]), "iou"),
         ("directional from 1000x away", base, dict(camera=CAMERA, lights=[
-            {"type": "directional", "position": [-1800, 6000, -1200], "target": [0, 0, 0]}]), "iou"),
+            {"type": "directional", "position": [-1800, 6000, -1200], "target": [0, 0, 0]}]),
+         "iou"),
     ]
     for e in (10, 5, 2):
         out.append((f"grazing light {e} deg", grazing,

@@ -23,7 +23,7 @@ from .errors import (
 )
 from .limits import Limits
 from .params import RenderParams
-from .render import RenderResult, Renderer
+from .render import Renderer, RenderResult
 from .scene import Scene, load_scene
 
 __all__ = [

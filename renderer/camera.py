@@ -3,6 +3,8 @@
 A request may give a pose, an eye/target pair, or nothing (use the file's camera, else frame the
 scene). Degenerate input is fixed where a meaning exists (an up vector parallel to the view
 direction is replaced) and refused where it does not (eye at the target, singular pose).
+The matrix helpers themselves (``perspective``, ``look_at``, ``pose_from_direction``) are in
+:mod:`renderer.plan.geometry`.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy as np
 
 from .errors import RequestError
 from .params import CameraParams
+from .plan.geometry import look_at, perspective
 from .scene import Scene
 
 
@@ -84,56 +87,6 @@ class Camera:
                     pts.append((sx * z * t * aspect, sy * z * t, -z))
         p = np.array(pts)
         return p @ self.pose[:3, :3].T + self.pose[:3, 3]
-
-
-def perspective(yfov: float, aspect: float, znear: float, zfar: float) -> np.ndarray:
-    """OpenGL perspective projection matrix, shape (4, 4)."""
-    f = 1.0 / math.tan(yfov / 2)
-    m = np.zeros((4, 4))
-    m[0, 0] = f / aspect
-    m[1, 1] = f
-    m[2, 2] = (zfar + znear) / (znear - zfar)
-    m[2, 3] = 2 * zfar * znear / (znear - zfar)
-    m[3, 2] = -1.0
-    return m
-
-
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
-    """Pose (4, 4) at ``eye`` looking at ``target`` (−Z toward it).
-
-    An ``up`` parallel to the view direction is replaced by the world axis least aligned with it,
-    so a light straight above its target still gets a valid frame.
-
-    Raises
-    ------
-    RequestError
-        When ``eye`` and ``target`` coincide (no direction exists).
-    """
-    eye = np.asarray(eye, np.float64)
-    forward = np.asarray(target, np.float64) - eye
-    return pose_from_direction(eye, forward, up)
-
-
-def pose_from_direction(
-    position: np.ndarray, forward: np.ndarray, up: np.ndarray | None = None
-) -> np.ndarray:
-    """Pose (4, 4) at ``position`` whose −Z points along ``forward``."""
-    forward = np.asarray(forward, np.float64)
-    n = np.linalg.norm(forward)
-    scale = max(1.0, float(np.max(np.abs(position))))
-    if not np.isfinite(n) or n <= 1e-12 * scale:
-        raise RequestError("the view direction has zero length (position equals target?)")
-    z = -forward / n
-    up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, np.float64)
-    un = np.linalg.norm(up)
-    if un <= 0 or abs(np.dot(up / un, z)) > 0.999:
-        up = np.eye(3)[int(np.argmin(np.abs(z)))]
-    x = np.cross(up, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, position
-    return pose
 
 
 def orthonormalize_pose(matrix: np.ndarray, what: str) -> np.ndarray:

@@ -16,7 +16,7 @@ def demo_glb() -> bytes:
     """The demo scene as ``.glb`` bytes (about 60 kB)."""
     import trimesh
 
-    def colored(mesh, rgba):
+    def colored(mesh: trimesh.Trimesh, rgba: tuple[int, int, int, int]) -> trimesh.Trimesh:
         mesh.visual = trimesh.visual.TextureVisuals(
             material=trimesh.visual.material.PBRMaterial(baseColorFactor=rgba)
         )

@@ -1,7 +1,8 @@
-"""CPU mirrors of the depth encodings in ``shaders/depth_encoding.glsl``.
+"""CPU mirrors of the depth encodings in ``shaders/chunks/depth_encoding.glsl``.
 
 Used to decode read-back shadow maps (the ``light_depth`` output) and to check the GL packing in
-the tests. Each function works on arrays of any shape.
+the tests. Each function works on arrays of any shape. :data:`ENCODING_ID` and :data:`STEP` are
+also the shaders' ``ENC_*`` and ``ENC_STEP_*`` (see :mod:`.shader_constants`).
 """
 
 from __future__ import annotations

@@ -68,6 +68,7 @@ def resolve_light(p: LightParams, scene: Scene, index: int = 0) -> Light:
         spot light without position, a singular pose matrix).
     """
     what = f"light {index}"
+    position: np.ndarray | None
     if p.pose is not None:
         pose = orthonormalize_pose(np.array(p.pose), what)
         position, direction = pose[:3, 3], -pose[:3, 2]
@@ -76,7 +77,8 @@ def resolve_light(p: LightParams, scene: Scene, index: int = 0) -> Light:
         if p.target is not None:
             if position is None:
                 raise RequestError(f"{what}: target needs a position")
-            direction = _unit(np.array(p.target) - position, f"{what} direction (position to target)")
+            direction = _unit(np.array(p.target) - position,
+                              f"{what} direction (position to target)")
         elif p.direction is not None:
             direction = _unit(np.array(p.direction), f"{what} direction")
         elif p.type == "point":

@@ -89,7 +89,8 @@ class LightParams(_Model):
     intensity: float = Field(default=1.0, ge=0.0, le=1e6)
     inner_cone_deg: float = Field(default=0.0, ge=0.0, lt=90.0, description="spot: half-angle")
     outer_cone_deg: float = Field(default=30.0, gt=0.0, le=89.5, description="spot: half-angle")
-    range: FiniteFloat | None = Field(default=None, gt=0, description="spot/point: cut-off distance")
+    range: FiniteFloat | None = Field(default=None, gt=0,
+                                      description="spot/point: cut-off distance")
     cast_shadows: bool = True
 
     @model_validator(mode="after")
@@ -155,6 +156,10 @@ class ShadowParams(_Model):
         return self
 
 
+def _default_outputs() -> list[Output]:
+    return ["color"]
+
+
 class RenderParams(_Model):
     """One render request (the JSON body of ``params`` in the CLI and the HTTP API)."""
 
@@ -169,7 +174,7 @@ class RenderParams(_Model):
     specular: float = Field(default=0.25, ge=0.0, le=10.0)
     shininess: float = Field(default=32.0, ge=1.0, le=4096.0)
     shadows: ShadowParams = Field(default_factory=ShadowParams)
-    outputs: list[Output] = Field(default_factory=lambda: ["color"], min_length=1)
+    outputs: list[Output] = Field(default_factory=_default_outputs, min_length=1)
     alpha: bool = Field(default=False, description="color output with an alpha channel")
     ground: bool = Field(
         default=False, description="add a ground plane under the scene to receive its shadows"

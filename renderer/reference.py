@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +27,9 @@ from .camera import Camera
 from .errors import ReferenceUnavailable, RequestError
 from .lights import Light
 from .scene import Scene
+
+if TYPE_CHECKING:
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 #: Offset of shadow-ray origins and continuation steps, as a fraction of the scene diagonal.
 EPS_REL = 1e-5
@@ -63,7 +67,7 @@ class ReferenceResult:
     seconds: float
 
 
-def _intersector_class():
+def _intersector_class() -> type[RayMeshIntersector]:
     """trimesh's embree-backed intersector; refuses the slow pure-Python fallback."""
     try:
         import embreex  # noqa: F401
@@ -103,10 +107,12 @@ def _texel_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
 class _Bvh:
     """An embree BVH over a subset of the scene's triangles, answering in global face indices."""
 
-    def __init__(self, tri: np.ndarray, faces: np.ndarray, cls) -> None:
+    def __init__(self, tri: np.ndarray, faces: np.ndarray,
+                 cls: type[RayMeshIntersector]) -> None:
         import trimesh
 
         self.faces = faces
+        self._rmi: RayMeshIntersector | None
         if len(faces) == 0:
             self._rmi = None
             return
@@ -191,7 +197,8 @@ class _Tracer:
 
     # ---------------------------------------------------------------------------------------
 
-    def intersect(self, faces: np.ndarray, o: np.ndarray, d: np.ndarray):
+    def intersect(self, faces: np.ndarray, o: np.ndarray,
+                  d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exact float64 ray-triangle intersection with known triangles (Möller–Trumbore).
 
         Returns
@@ -264,7 +271,7 @@ class _Tracer:
         t_max: np.ndarray,
         test: np.ndarray,
         threshold: np.ndarray,
-    ):
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Nearest hit along each ray that passes the alpha test, before ``t_max``.
 
         Parameters

@@ -23,8 +23,8 @@ from .cache import BoundedCache, content_key
 from .camera import Camera, resolve_camera
 from .encodings import debug_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
-from .limits import Limits, check_lights, check_map_sizes, check_request, check_scene, max_map_size
 from .lights import Light, resolve_lights
+from .limits import Limits, check_lights, check_map_sizes, check_request, check_scene, max_map_size
 from .params import RenderParams
 from .plan import RenderPlan, make_plan
 from .scene import Scene, load_scene
@@ -90,9 +90,9 @@ class RenderResult:
     info: dict = field(default_factory=dict)
     metrics: list[dict] | None = None
 
-    def report(self) -> dict:
+    def report(self) -> dict[str, Any]:
         """JSON-ready summary: timings, plan, GL info, metrics."""
-        out = {"timings": self.timings, "plan": self.plan, "gl": self.info}
+        out: dict[str, Any] = {"timings": self.timings, "plan": self.plan, "gl": self.info}
         if self.metrics is not None:
             out["metrics"] = self.metrics
         return out
@@ -211,7 +211,8 @@ class Renderer:
 
     # -- rendering ---------------------------------------------------------------------------
 
-    def render(self, scene: Scene | str | Path | bytes, params: RenderParams | Mapping | None = None,
+    def render(self, scene: Scene | str | Path | bytes,
+               params: RenderParams | Mapping | None = None,
                *, resources: Mapping[str, bytes] | None = None) -> RenderResult:
         """Render a scene.
 
@@ -268,7 +269,7 @@ class Renderer:
             lights = resolve_lights(params.lights, scene)
             check_lights(len(lights), self.limits)
             plan = make_plan(scene, camera, lights, gpu.origin, params)
-            check_map_sizes((lp.size for lp in plan.map_lights),
+            check_map_sizes((lp.map_size for lp in plan.map_lights),
                             min(self.context.max_texture_size, self.context.max_cube_size))
             timings["plan"] = time.perf_counter() - t
 
@@ -284,13 +285,16 @@ class Renderer:
             timings["camera"] = time.perf_counter() - t
 
             t = time.perf_counter()
-            out = self.camera_pass.read(params.outputs, len(lights), params.alpha, camera)
+            # A list[str] copy: CameraPass.read takes list[str], and list is invariant.
+            out = self.camera_pass.read(list(params.outputs), len(lights), params.alpha, camera)
             result = RenderResult(color=out.color, visibility=out.visibility, depth=out.depth)
             if "light_depth" in params.outputs:
                 for sm in maps:
                     depth = sm.read_depth()
+                    kind = sm.plan.kind
+                    assert kind is not None  # only lights with a map pass have a ShadowMap
                     result.light_depth.append(
-                        LightDepth(sm.plan.index, sm.plan.kind, debug_image(depth), depth,
+                        LightDepth(sm.plan.index, kind, debug_image(depth), depth,
                                    sm.plan.near, sm.plan.far)
                     )
             check_gl("readback")
@@ -330,6 +334,7 @@ class Renderer:
             # Metrics need the visibility: render it once more with the same settings.
             again = params.model_copy(update={"outputs": ["visibility"], "reference": False})
             vis = self.render(scene, again).visibility
+            assert vis is not None  # requested as the only output
         ref = trace_reference(scene, camera, lights)
         out = []
         for m in compare_all(vis, ref):
@@ -365,13 +370,15 @@ def _as_params(params: RenderParams | Mapping | None) -> RenderParams:
 def _variant_names(variants: set[tuple]) -> list[str]:
     """Each program variant as its switched-on features, e.g. ``"HAS_UV FILTER_PCF PCF_RADIUS=1"``.
 
-    Attribute locations are left out (they only follow the vertex layout).
+    Attribute locations (``LOC_*``) and the per-light lists (``LIGHT_TYPES``, ``LIGHT_MAPS_2D``,
+    ``LIGHT_MAPS_CUBE``) are left out: they only follow the vertex layout and the plan's lights.
     """
     out = []
     for defines in variants:
         parts = []
         for name, value in defines:
-            if name.startswith(("LOC_", "LIGHT_")) or value is False or (not isinstance(value, bool) and value == 0):
+            if (name.startswith(("LOC_", "LIGHT_")) or value is False
+                    or (not isinstance(value, bool) and value == 0)):
                 continue
             parts.append(name if value is True else f"{name}={value}")
         out.append(" ".join(parts))

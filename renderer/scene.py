@@ -17,9 +17,10 @@ import json
 import math
 import posixpath
 import struct
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote
 
 import numpy as np
@@ -27,6 +28,9 @@ import numpy as np
 from .cache import content_key
 from .errors import LimitError, SceneError
 from .limits import Limits, check_scene
+
+if TYPE_CHECKING:
+    import trimesh
 
 GLB_MAGIC = b"glTF"
 
@@ -97,7 +101,8 @@ class Instance:
     matrix : ndarray, shape (4, 4), float64
         Local-to-world transform.
     cast_shadow, receive_shadow : bool
-        From ``extras.castShadow`` / ``extras.receiveShadow`` on the node or its mesh (default true).
+        From ``extras.castShadow`` / ``extras.receiveShadow`` on the node or its mesh (default
+        true).
     bounds : ndarray, shape (2, 3), float64
         World-space axis-aligned bounds.
     """
@@ -167,7 +172,7 @@ class Scene:
         """Triangles drawn per pass, counting every instance."""
         return int(sum(len(self.primitives[i.primitive].indices) for i in self.instances))
 
-    def with_ground(self, color=(0.8, 0.8, 0.8, 1.0)) -> Scene:
+    def with_ground(self, color: Sequence[float] = (0.8, 0.8, 0.8, 1.0)) -> Scene:
         """This scene plus a ground plane under it (receives shadows, casts none).
 
         The plane lies just below the scene's lowest point (along +Y, glTF's up) and extends
@@ -182,7 +187,7 @@ class Scene:
         pos[:, 1] = y
         ground = Primitive(
             positions=(pos - c).astype(np.float32),
-            normals=np.tile(np.float32([0, 1, 0]), (4, 1)),
+            normals=np.tile(np.array([0, 1, 0], np.float32), (4, 1)),
             indices=np.array([[0, 2, 1], [0, 3, 2]], np.uint32),
             material=Material(np.asarray(color, np.float32), double_sided=True),
             name="ground",
@@ -259,7 +264,8 @@ def directory_resources(folder: str | Path, max_bytes: int = 512 * 2**20) -> dic
         if p.is_file() and not p.is_symlink() and p.suffix.lower() not in (".gltf",):
             total += p.stat().st_size
             if total > max_bytes:
-                raise LimitError("max_upload_bytes", f"resources under {root} exceed {max_bytes} bytes")
+                raise LimitError("max_upload_bytes",
+                                 f"resources under {root} exceed {max_bytes} bytes")
             out[p.relative_to(root).as_posix()] = p.read_bytes()
     return out
 
@@ -397,7 +403,7 @@ def _flag(meta: dict | None, key: str) -> bool | None:
     return None
 
 
-def _material(visual) -> tuple[Material, np.ndarray | None, np.ndarray | None]:
+def _material(visual: Any) -> tuple[Material, np.ndarray | None, np.ndarray | None]:
     """Material, per-vertex uv (when textured) and per-vertex colours (when present)."""
     import trimesh
 
@@ -429,7 +435,8 @@ def _material(visual) -> tuple[Material, np.ndarray | None, np.ndarray | None]:
         alpha_mode = (getattr(mat, "alphaMode", None) or "OPAQUE").upper()
         cutoff = float(getattr(mat, "alphaCutoff", None) or 0.5)
         double_sided = bool(getattr(mat, "doubleSided", False))
-    vc = getattr(visual, "vertex_attributes", {}).get("color") if hasattr(visual, "vertex_attributes") else None
+    vc = (getattr(visual, "vertex_attributes", {}).get("color")
+          if hasattr(visual, "vertex_attributes") else None)
     if vc is not None:
         colors = np.asarray(vc, np.float32)
         if colors.max(initial=0) > 1.0:
@@ -437,7 +444,7 @@ def _material(visual) -> tuple[Material, np.ndarray | None, np.ndarray | None]:
     return Material(factor, texture, alpha_mode, cutoff, double_sided), uv, colors
 
 
-def _primitive_from_trimesh(mesh, name: str) -> Primitive:
+def _primitive_from_trimesh(mesh: trimesh.Trimesh, name: str) -> Primitive:
     faces = np.asarray(mesh.faces, dtype=np.int64)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
     if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
@@ -473,7 +480,10 @@ def _primitive_from_trimesh(mesh, name: str) -> Primitive:
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals; zero-area triangles contribute nothing, lone vertices get +Y."""
+    """Area-weighted vertex normals.
+
+    Zero-area triangles contribute nothing, lone vertices get +Y.
+    """
     tri = verts[faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     vn = np.zeros_like(verts)
@@ -486,7 +496,7 @@ def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vn.astype(np.float32)
 
 
-def _world_bounds(local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+def world_bounds(local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     corners = np.array(np.meshgrid(*local.T)).reshape(3, -1).T
     w = corners @ matrix[:3, :3].T + matrix[:3, 3]
     return np.stack([w.min(axis=0), w.max(axis=0)])
@@ -554,15 +564,22 @@ def load_scene(
 
     try:
         tm = trimesh.load(
-            io.BytesIO(data), file_type=ft, resolver=resolver, force="scene", process=False
+            io.BytesIO(data),
+            file_type=ft,
+            # A duck-typed resolver (get / namespaced / write): trimesh's ResolverLike names only
+            # its own Resolver class or a Mapping, though the loaders call just those methods.
+            resolver=resolver,  # type: ignore[arg-type]
+            force="scene",
+            process=False,
         )
     except SceneError:
         raise
-    except Exception as exc:  # trimesh raises many types on corrupt input
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types on corrupt input
         raise SceneError(f"the glTF file cannot be parsed: {type(exc).__name__}: {exc}") from None
+    assert isinstance(tm, trimesh.Scene)  # force="scene"; trimesh types the result as Geometry
 
     primitives: list[Primitive] = []
-    index_of: dict[str, int] = {}
+    index_of: dict[Hashable, int] = {}
     instances: list[Instance] = []
     edge_meta = tm.graph.transforms.edge_data
     parents = {e[1]: e for e in edge_meta}
@@ -573,7 +590,7 @@ def load_scene(
             continue
         if geom_name not in index_of:
             index_of[geom_name] = len(primitives)
-            primitives.append(_primitive_from_trimesh(mesh, geom_name))
+            primitives.append(_primitive_from_trimesh(mesh, str(geom_name)))
         matrix = np.asarray(matrix, dtype=np.float64)
         if not np.all(np.isfinite(matrix)):
             raise SceneError(f"node {node!r} has a non-finite transform")
@@ -592,7 +609,7 @@ def load_scene(
                 cast_shadow=True if cast is None else cast,
                 receive_shadow=True if receive is None else receive,
                 name=str(node),
-                bounds=_world_bounds(prim.local_bounds.astype(np.float64), matrix),
+                bounds=world_bounds(prim.local_bounds.astype(np.float64), matrix),
             )
         )
     if not instances:

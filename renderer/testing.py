@@ -9,14 +9,22 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .camera import resolve_camera
 from .lights import resolve_lights
 from .params import RenderParams
-from .scene import Instance, Material, Scene, _world_bounds, scene_from_meshes
+from .scene import Instance, Material, Scene, scene_from_meshes, world_bounds
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from .render import Renderer
 
 
 @dataclass
@@ -33,9 +41,10 @@ class Measurement:
     seconds: float
 
 
-def measure(renderer, scene: Scene, params: RenderParams | dict | None = None) -> Measurement:
+def measure(renderer: Renderer, scene: Scene,
+            params: RenderParams | dict[str, Any] | None = None) -> Measurement:
     """Render visibility with ``params`` and compare each light with the ray-traced reference."""
-    from .metrics import shadow_metrics
+    from .metrics import compare_all
     from .reference import trace_reference
 
     if not isinstance(params, RenderParams):
@@ -44,17 +53,16 @@ def measure(renderer, scene: Scene, params: RenderParams | dict | None = None) -
     t = time.perf_counter()
     result = renderer.render(scene, params)
     seconds = time.perf_counter() - t
+    vis = result.visibility
+    assert vis is not None  # requested above
     camera = resolve_camera(params.camera, scene, params.width, params.height)
     lights = resolve_lights(params.lights, scene)
     ref = trace_reference(scene, camera, lights)
-    metrics = [
-        shadow_metrics(result.visibility[..., i], ref.visibility[..., i], ref.valid[..., i])
-        for i in range(len(lights))
-    ]
-    return Measurement(metrics, result, ref, seconds)
+    return Measurement(compare_all(vis, ref), result, ref, seconds)
 
 
-def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0)) -> Scene:
+def transformed(scene: Scene, scale: float = 1.0,
+                offset: Sequence[float] = (0.0, 0.0, 0.0)) -> Scene:
     """The same scene scaled about the origin and then translated (in float64 node matrices)."""
     m = np.diag([scale, scale, scale, 1.0])
     m[:3, 3] = offset
@@ -65,7 +73,7 @@ def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0)) -> Sce
             inst.cast_shadow,
             inst.receive_shadow,
             inst.name,
-            _world_bounds(scene.primitives[inst.primitive].local_bounds.astype(np.float64),
+            world_bounds(scene.primitives[inst.primitive].local_bounds.astype(np.float64),
                           m @ inst.matrix),
         )
         for inst in scene.instances
@@ -75,7 +83,7 @@ def transformed(scene: Scene, scale: float = 1.0, offset=(0.0, 0.0, 0.0)) -> Sce
                  key=f"{scene.key}:{scale!r}:{tuple(offset)!r}", focus=focus)
 
 
-def _box(extents, centre, **meta):
+def _box(extents: npt.ArrayLike, centre: npt.ArrayLike, **meta: bool) -> trimesh.Trimesh:
     import trimesh
 
     mesh = trimesh.creation.box(extents=extents)
@@ -84,7 +92,7 @@ def _box(extents, centre, **meta):
     return mesh
 
 
-def _plane(size: float, y: float = 0.0, **meta):
+def _plane(size: float, y: float = 0.0, **meta: bool) -> trimesh.Trimesh:
     import trimesh
 
     h = size / 2

@@ -1,6 +1,17 @@
 #version 410 core
 // Camera pass: world position (relative to the scene's origin), normal, and the optional
 // texture coordinates and vertex colours of the primitive.
+//
+// Variant defines and their defaults; renderer/passes/camera_pass.py sets them per draw. The
+// attribute slots follow renderer/gl/resources.py: position 0, normal 1, then UV, colour and the
+// instance matrix in the first free slots.
+#define HAS_UV 0       // texture coordinates
+#define HAS_COLOR 0    // vertex colours
+#define NUM_MAPS_2D 0  // 2D shadow maps, whose coordinates are interpolated from here
+#define LOC_UV 2
+#define LOC_COLOR 2
+#define LOC_MODEL 2
+
 layout(location = 0) in vec3 a_position;
 layout(location = 1) in vec3 a_normal;
 #if HAS_UV

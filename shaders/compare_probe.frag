@@ -1,6 +1,12 @@
 #version 410 core
-// Probe of shadow_lookup.glsl: one output pixel per query. Each query texel holds
+// Probe of chunks/shadow_lookup.glsl: one output pixel per query. Each query texel holds
 // (u, v, ref, unused); the result is shadow_2d() against the bound map.
+#define ENCODING ENC_DEPTH
+#define FILTER_PCF 0
+#define PCF_RADIUS 0
+
+#include "chunks/shadow_lookup.glsl"
+
 uniform MAP2D u_map;
 uniform sampler2D u_queries;
 uniform float u_map_size;

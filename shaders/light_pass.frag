@@ -1,6 +1,15 @@
 #version 410 core
 // Light pass: store the linear light depth t = (depth - near) / (far - near) of the closest
 // caster, packed into colour channels or written to the depth texture.
+//
+// Variant defines and their defaults; renderer/passes/light_pass.py sets them per draw.
+#define ENCODING ENC_DEPTH  // how the map stores depth
+#define ALPHA_TEST 0        // alpha cut-out casters
+#define WRITE_DEPTH 0       // store the linear depth as the window depth (perspective lights)
+#define POLYGON_OFFSET 0    // offset the stored depth (factor x slope + units x step)
+
+#include "chunks/depth_encoding.glsl"
+
 in float v_light_depth;
 #if ALPHA_TEST
 in vec2 v_uv;

@@ -1,6 +1,12 @@
 #version 410 core
 // Light pass: transform into the light's view. Positions are relative to the scene's origin
 // (see renderer.gpu), so float32 keeps its precision far from the world origin.
+//
+// Variant defines and their defaults; renderer/passes/light_pass.py sets them per draw.
+#define ALPHA_TEST 0  // alpha cut-out casters: pass the texture coordinates on
+#define LOC_UV 2      // attribute slots, as renderer/gl/resources.py lays them out
+#define LOC_MODEL 2
+
 layout(location = 0) in vec3 a_position;
 #if ALPHA_TEST
 layout(location = LOC_UV) in vec2 a_uv;

@@ -11,21 +11,8 @@ GLSL), ``shadowmap.app`` (the HTTP service, with the ``server`` extra) and ``sha
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
 
-from .renderer import (
-    LimitError,
-    Limits,
-    ReferenceUnavailable,
-    RenderError,
-    RenderParams,
-    RenderResult,
-    Renderer,
-    RequestError,
-    Scene,
-    SceneError,
-    ShaderError,
-    ShadowMapError,
-    load_scene,
-)
+from .renderer import *  # noqa: F403  (the library's public API, listed in its __all__)
+from .renderer import __all__ as _library_api
 
 DISTRIBUTION = "shadowmap-service"
 
@@ -34,20 +21,4 @@ try:
 except PackageNotFoundError:  # a source tree that was never installed
     __version__ = "0+unknown"
 
-__all__ = [
-    "DISTRIBUTION",
-    "LimitError",
-    "Limits",
-    "ReferenceUnavailable",
-    "RenderError",
-    "RenderParams",
-    "RenderResult",
-    "Renderer",
-    "RequestError",
-    "Scene",
-    "SceneError",
-    "ShaderError",
-    "ShadowMapError",
-    "__version__",
-    "load_scene",
-]
+__all__ = [*_library_api, "DISTRIBUTION", "__version__"]

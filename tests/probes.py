@@ -8,7 +8,7 @@ from OpenGL import GL
 from shadowmap.renderer import encodings
 from shadowmap.renderer.gl.resources import Framebuffer
 
-PROBE_VERT = ("fullscreen.vert",)
+PROBE_VERT = "fullscreen.vert"
 
 
 def _texture(data: np.ndarray, internal, fmt, typ, compare=False) -> int:
@@ -23,15 +23,22 @@ def _texture(data: np.ndarray, internal, fmt, typ, compare=False) -> int:
     for p in (GL.GL_TEXTURE_WRAP_S, GL.GL_TEXTURE_WRAP_T):
         GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_CLAMP_TO_EDGE)
     if compare:
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_MODE, GL.GL_COMPARE_REF_TO_TEXTURE)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_MODE,
+                           GL.GL_COMPARE_REF_TO_TEXTURE)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_FUNC, GL.GL_LEQUAL)
     return tex
 
 
 def _run(renderer, frag, defines, inputs: dict[str, int], w, h, target, uniforms=None):
-    """Draw the probe into a w x h target; returns the read-back array with row 0 = texel row 0."""
+    """Draw the probe into a w x h target; returns the read-back array with row 0 = texel row 0.
+
+    ``frag`` is the probe's fragment main file, or a ready :class:`Program` (``defines`` unused).
+    """
     renderer.context.make_current()
-    prog = renderer.programs.get(PROBE_VERT, frag, defines)
+    if isinstance(frag, str):
+        prog = renderer.programs.get(PROBE_VERT, frag, defines)
+    else:
+        prog = frag
     internal, fmt, typ, channels, dtype = target
     fb = Framebuffer(w, h, [(internal, fmt, typ)], None)
     vao = GL.glGenVertexArrays(1)
@@ -62,7 +69,7 @@ def gpu_encode(renderer, t: np.ndarray, encoding: str) -> np.ndarray:
     h, w = t.shape
     tex = _texture(t.astype(np.float32), GL.GL_R32F, GL.GL_RED, GL.GL_FLOAT)
     try:
-        return _run(renderer, ("depth_encoding.glsl", "encoding_probe.frag"),
+        return _run(renderer, "encoding_probe.frag",
                     {"ENCODING": encodings.ENCODING_ID[encoding], "ENCODE": 1},
                     {"u_input": tex}, w, h,
                     (GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8))
@@ -75,7 +82,7 @@ def gpu_decode(renderer, rgba: np.ndarray, encoding: str) -> np.ndarray:
     h, w = rgba.shape[:2]
     tex = _texture(rgba.astype(np.uint8), GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)
     try:
-        out = _run(renderer, ("depth_encoding.glsl", "encoding_probe.frag"),
+        out = _run(renderer, "encoding_probe.frag",
                    {"ENCODING": encodings.ENCODING_ID[encoding], "ENCODE": 0},
                    {"u_input": tex}, w, h,
                    (GL.GL_R32F, GL.GL_RED, GL.GL_FLOAT, 1, np.float32))
@@ -100,8 +107,8 @@ def gpu_compare(renderer, depth_map: np.ndarray, queries: np.ndarray, encoding: 
     try:
         defines = {"ENCODING": encodings.ENCODING_ID[encoding], "FILTER_PCF": int(pcf_radius > 0),
                    "PCF_RADIUS": pcf_radius}
-        out = _run(renderer, ("depth_encoding.glsl", "shadow_lookup.glsl", "compare_probe.frag"),
-                   defines, {"u_map": map_tex, "u_queries": q_tex}, len(queries), 1,
+        out = _run(renderer, "compare_probe.frag", defines,
+                   {"u_map": map_tex, "u_queries": q_tex}, len(queries), 1,
                    (GL.GL_R32F, GL.GL_RED, GL.GL_FLOAT, 1, np.float32),
                    uniforms={"u_map_size": float(s)} if pcf_radius else None)
         return out[0, :, 0]

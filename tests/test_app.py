@@ -3,8 +3,9 @@
 Two servers run for the module, both with small limits set through ``SHADOWMAP_*``:
 
 - ``server``: the main one (queue of 32), for good renders, bad input and concurrency;
-- ``tiny``: queue of 1 and a 1 s render time limit, started through :func:`shadowmap.app.main.run`, for
-  the queue-full (503 + Retry-After) and time-limit (504) behaviour.
+- ``tiny``: queue of 1 and a 1 s render time limit, started through
+  :func:`shadowmap.app.main.run`, for the queue-full (503 + Retry-After) and time-limit (504)
+  behaviour.
 """
 
 from __future__ import annotations
@@ -87,7 +88,8 @@ class ServerProcess:
         full_env["PYTHONPATH"] = os.pathsep.join(p for p in paths if p)
         if via_run:
             cmd = [sys.executable, "-c",
-                   f"from shadowmap.app.main import run; run('127.0.0.1', {self.port}, 1, 'warning')"]
+                   "from shadowmap.app.main import run; "
+                   f"run('127.0.0.1', {self.port}, 1, 'warning')"]
         else:
             cmd = [sys.executable, "-m", "uvicorn", "--factory", "shadowmap.app.main:create_app",
                    "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "warning"]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+
 def shadowmap(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "shadowmap", *args], capture_output=True,
                           text=True, cwd=cwd, timeout=300)

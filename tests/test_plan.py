@@ -115,7 +115,8 @@ def test_shader_variants_follow_the_scene(renderer, models):
     assert any("ALPHA_MASK" in v for v in r.plan["shader_variants"]["camera_pass"])
 
 
-@pytest.mark.parametrize("name", ["BoxTextured.glb", "AlphaBlendModeTest.glb", "CesiumMilkTruck.glb"])
+@pytest.mark.parametrize("name", [
+    "BoxTextured.glb", "AlphaBlendModeTest.glb", "CesiumMilkTruck.glb"])
 def test_specialised_variants_equal_the_generic_program(renderer, models, name):
     # optimize=False draws every primitive with one all-features variant (white texture and
     # vertex colour stand-ins, PCF loop, spot and range code): the pictures must agree.

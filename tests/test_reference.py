@@ -7,7 +7,6 @@ follows from a ray-plane intersection and a ray-box slab test.
 from __future__ import annotations
 
 import io
-import json
 import math
 import sys
 
@@ -17,11 +16,11 @@ import trimesh
 from PIL import Image
 
 from gltf_files import make_glb
-
-from shadowmap.renderer.camera import Camera, look_at
+from shadowmap.renderer.camera import Camera
 from shadowmap.renderer.errors import ReferenceUnavailable
 from shadowmap.renderer.lights import Light
 from shadowmap.renderer.metrics import ShadowMetrics, compare_all, shadow_metrics
+from shadowmap.renderer.plan.geometry import look_at
 from shadowmap.renderer.reference import ReferenceResult, trace_reference
 from shadowmap.renderer.scene import load_scene, scene_from_meshes
 
@@ -472,7 +471,7 @@ def test_edge_distance_of_shifted_square_matches_brute_force():
 
     def edges(mask):
         pts = []
-        for y, x in zip(*np.nonzero(mask)):
+        for y, x in zip(*np.nonzero(mask), strict=True):
             nbs = [(y + dy, x + dx) for dy, dx in ((1, 0), (-1, 0), (0, 1), (0, -1))]
             if any(0 <= a < 20 and 0 <= b < 24 and not mask[a, b] for a, b in nbs):
                 pts.append((y, x))

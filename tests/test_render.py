@@ -53,8 +53,10 @@ DEMO_CAMERA = {"eye": [3.5, 3.0, 5.0], "target": [0.0, 0.4, 0.0]}
     "light, kind",
     [
         ({"type": "directional", "direction": [-0.6, -1.0, 0.25]}, "ortho"),
-        ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 40}, "perspective"),
-        ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 80}, "cube"),
+        ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 40},
+         "perspective"),
+        ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 80},
+         "cube"),
         ({"type": "point", "position": [-1.5, 2.5, 2.0]}, "cube"),
     ],
 )

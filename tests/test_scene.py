@@ -11,7 +11,8 @@ import pytest
 from shadowmap.renderer import LimitError, Limits, SceneError, load_scene
 from shadowmap.renderer.scene import MappingResolver
 
-MODELS = ["AlphaBlendModeTest.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "Duck.glb", "cube.glb"]
+MODELS = ["AlphaBlendModeTest.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "Duck.glb",
+          "cube.glb"]
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -140,13 +141,15 @@ def test_vertex_colours_reach_the_picture(renderer):
 
     box = trimesh.creation.box(extents=(1, 1, 1))
     box.unmerge_vertices()
-    box.visual = trimesh.visual.ColorVisuals(box, vertex_colors=np.tile([255, 0, 0, 255], (len(box.vertices), 1)))
+    box.visual = trimesh.visual.ColorVisuals(
+        box, vertex_colors=np.tile([255, 0, 0, 255], (len(box.vertices), 1)))
     scene = trimesh.Scene(box)
     loaded = load_scene(scene.export(file_type="glb"))
     prim = loaded.primitives[0]
     assert prim.colors is not None and np.allclose(prim.colors[:, :3], [1, 0, 0], atol=0.01)
-    r = renderer.render(loaded, RenderParams(lights=[{"direction": [-0.3, -1, -0.5]}], ambient=[0.5] * 3,
-                                             background=[0, 0, 0, 1], width=64, height=48))
+    r = renderer.render(loaded, RenderParams(lights=[{"direction": [-0.3, -1, -0.5]}],
+                                             ambient=[0.5] * 3, background=[0, 0, 0, 1],
+                                             width=64, height=48))
     covered = r.color.sum(axis=2) > 0
     red, green = r.color[..., 0][covered].astype(int), r.color[..., 1][covered].astype(int)
     assert covered.mean() > 0.1 and np.all(red > green + 50)

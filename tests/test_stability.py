@@ -1,4 +1,5 @@
-"""Stiff and extreme cases, each checked against the ray-traced reference or an exact expectation."""
+"""Stiff and extreme cases, each checked against the ray-traced reference or an exact
+expectation."""
 
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ def test_far_spot_light(renderer, scene, distance):
     position = -direction * distance
     cone = math.degrees(math.atan(5.0 / distance)) * 1.2
     m, result = iou(renderer, scene, camera=CAMERA, lights=[
-        {"type": "spot", "position": position.tolist(), "target": [0, 0, 0], "outer_cone_deg": cone}])
+        {"type": "spot", "position": position.tolist(), "target": [0, 0, 0],
+         "outer_cone_deg": cone}])
     assert result.plan["lights"][0]["shadow_map"] == "perspective"
     assert m.iou >= 0.95, m
 
@@ -66,7 +68,8 @@ def test_small_casters_on_a_vast_ground_plane(renderer, elevation):
     # The plane reaches the horizon; it casts nothing onto what stands on it, so the map is fitted
     # to the pebbles, not to the plain.
     e = math.radians(elevation)
-    m, result = iou(renderer, T.pebbles_on_a_plain(), camera={"eye": [0, 3, 6], "target": [0, 0, 0]},
+    m, result = iou(renderer, T.pebbles_on_a_plain(),
+                    camera={"eye": [0, 3, 6], "target": [0, 0, 0]},
                     lights=[{"direction": [0.3 * math.cos(e), -math.sin(e), math.cos(e)]}])
     assert result.plan["lights"][0]["skipped"] == {"plane_facing_receivers": 1}
     assert m.iou >= 0.95, m
@@ -76,22 +79,26 @@ def test_small_casters_on_a_vast_ground_plane(renderer, elevation):
 # -- scale and distance from the origin --------------------------------------------------------
 
 
-@pytest.mark.parametrize("scale, offset", [(1e-3, 0.0), (1e3, 0.0), (1e4, 0.0), (1.0, 1e5), (1e-3, 1e5)])
+@pytest.mark.parametrize("scale, offset",
+                         [(1e-3, 0.0), (1e3, 0.0), (1e4, 0.0), (1.0, 1e5), (1e-3, 1e5)])
 def test_same_iou_at_any_scale_and_offset(renderer, scene, scale, offset):
-    light = {"type": "spot", "position": [-3.0, 6.0, 2.0], "target": [0, 0, 0], "outer_cone_deg": 45}
+    light = {"type": "spot", "position": [-3.0, 6.0, 2.0], "target": [0, 0, 0],
+             "outer_cone_deg": 45}
 
     def params(s, o):
         off = np.array([o, o, o])
         move = lambda p: (np.asarray(p) * s + off).tolist()  # noqa: E731
         return {
             "camera": {"eye": move(CAMERA["eye"]), "target": move(CAMERA["target"])},
-            "lights": [{**light, "position": move(light["position"]), "target": move(light["target"])},
+            "lights": [{**light, "position": move(light["position"]),
+                        "target": move(light["target"])},
                        {"type": "directional", "direction": [-0.5, -1.0, -0.3]}],
         }
 
     base = T.measure(renderer, scene, params(1.0, 0.0)).metrics
-    moved = T.measure(renderer, T.transformed(scene, scale, (offset,) * 3), params(scale, offset)).metrics
-    for a, b in zip(base, moved):
+    moved = T.measure(renderer, T.transformed(scene, scale, (offset,) * 3),
+                      params(scale, offset)).metrics
+    for a, b in zip(base, moved, strict=True):
         assert a.iou >= 0.95
         assert abs(a.iou - b.iou) <= 0.01, (a, b)
 
@@ -120,7 +127,8 @@ def test_spot_near_far_ratio_of_1e5(renderer):
 
 def test_spot_cone_of_179_degrees(renderer, scene):
     m, result = iou(renderer, scene, camera=CAMERA, lights=[
-        {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0], "outer_cone_deg": 89.5}])
+        {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0],
+         "outer_cone_deg": 89.5}])
     assert result.plan["lights"][0]["shadow_map"] == "cube"
     assert m.iou >= 0.95, m
 
@@ -142,7 +150,8 @@ def test_point_light_inside_a_room_uses_all_six_faces(renderer):
 
 
 def test_light_straight_down_parallel_to_up(renderer, scene):
-    m, _ = iou(renderer, scene, camera=CAMERA, lights=[{"type": "directional", "direction": [0, -1, 0]}])
+    m, _ = iou(renderer, scene, camera=CAMERA,
+               lights=[{"type": "directional", "direction": [0, -1, 0]}])
     assert m.iou >= 0.95, m
 
 
@@ -209,8 +218,10 @@ def test_coplanar_caster_and_receiver_has_no_acne(renderer):
 
     from shadowmap.renderer.scene import scene_from_meshes
 
-    ground = trimesh.Trimesh([[-3, 0, -3], [3, 0, -3], [3, 0, 3], [-3, 0, 3]], [[0, 2, 1], [0, 3, 2]])
-    decal = trimesh.Trimesh([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], [[0, 2, 1], [0, 3, 2]])
+    ground = trimesh.Trimesh([[-3, 0, -3], [3, 0, -3], [3, 0, 3], [-3, 0, 3]],
+                             [[0, 2, 1], [0, 3, 2]])
+    decal = trimesh.Trimesh([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]],
+                            [[0, 2, 1], [0, 3, 2]])
     box = trimesh.creation.box(extents=(0.5, 0.5, 0.5))
     box.apply_translation((1.5, 0.25, 1.5))
     m, _ = iou(renderer, scene_from_meshes([ground, decal, box]), camera=CAMERA,

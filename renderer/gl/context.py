@@ -20,7 +20,8 @@ class GLContext:
     Parameters
     ----------
     platform : {"egl", "osmesa"}, optional
-        Defaults to ``PYOPENGL_PLATFORM`` (selected, or probed, by :func:`.platform.select_platform`).
+        Defaults to ``PYOPENGL_PLATFORM`` (selected, or probed, by
+        :func:`.platform.select_platform`).
     """
 
     def __init__(self, platform: str | None = None) -> None:

@@ -35,9 +35,9 @@ def egl_available() -> bool:
     query = ctypes.CFUNCTYPE(
         ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(ctypes.c_int)
     )(query_ptr)
-    get_display = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p)(
-        display_ptr
-    )
+    get_display = ctypes.CFUNCTYPE(
+        ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p
+    )(display_ptr)
     count = ctypes.c_int(0)
     if not query(0, None, ctypes.byref(count)) or count.value < 1:
         return False

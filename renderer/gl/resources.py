@@ -7,16 +7,16 @@ from that context's thread only, and is freed by its ``release()`` (safe to call
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-
+import numpy.typing as npt
 import pyrender
 from OpenGL import GL
 
 from ..errors import RenderError
 from ..scene import Scene
-
 
 # --------------------------------------------------------------------------------------------
 # Scene upload
@@ -184,8 +184,9 @@ class Framebuffer:
         Attachments are cube maps; :meth:`bind_face` selects the face to render.
     """
 
-    def __init__(self, width, height, colors, depth, cube=False, depth_compare=False,
-                 linear=False):
+    def __init__(self, width: int, height: int, colors: Sequence[tuple[int, int, int]],
+                 depth: tuple[int, bool] | None, cube: bool = False, depth_compare: bool = False,
+                 linear: bool = False) -> None:
         self.width, self.height, self.cube = width, height, cube
         self.fbo = GL.glGenFramebuffers(1)
         self.color_textures: list[int] = []
@@ -233,14 +234,17 @@ class Framebuffer:
                 GL.glReadBuffer(GL.GL_NONE)
             status = GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER)
             if status != GL.GL_FRAMEBUFFER_COMPLETE:
-                raise RenderError(f"framebuffer {width}x{height} incomplete (status 0x{status:04x})")
+                raise RenderError(
+                    f"framebuffer {width}x{height} incomplete (status 0x{status:04x})"
+                )
         except Exception:
             self.release()
             raise
 
     def _attach(self, target: int) -> None:
         for i, tex in enumerate(self.color_textures):
-            GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + i, target, tex, 0)
+            GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + i, target, tex,
+                                      0)
         if self.depth_texture:
             GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, target,
                                       self.depth_texture, 0)
@@ -254,7 +258,8 @@ class Framebuffer:
         self._attach(GL.GL_TEXTURE_CUBE_MAP_POSITIVE_X + face)
         GL.glViewport(0, 0, self.width, self.height)
 
-    def read_color(self, index: int, fmt: int, typ: int, channels: int, dtype) -> np.ndarray:
+    def read_color(self, index: int, fmt: int, typ: int, channels: int,
+                   dtype: npt.DTypeLike) -> np.ndarray:
         """Read one colour attachment; returns (H, W, channels), row 0 at the top."""
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0 + index)

@@ -7,21 +7,23 @@ back to front, without writing depth or visibility.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from OpenGL import GL
 
 from .. import encodings
+from ..camera import Camera
+from ..errors import RenderError
+from ..gl.programs import Program, ProgramCache
 from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene
-from .light_pass import ShadowMap
 from ..params import RenderParams
 from ..plan import RenderPlan
-from ..gl.programs import Program, ProgramCache
+from ..scene import Material
+from ..shader_constants import LIGHT_TYPES
+from .light_pass import ShadowMap
 
-VERT = ("camera_pass.vert",)
-FRAG = ("depth_encoding.glsl", "shadow_lookup.glsl", "camera_pass.frag")
-LIGHT_TYPES = {"directional": 0, "spot": 1, "point": 2}
 # Attribute slots that no VAO enables: reading them yields the constant set with glVertexAttrib,
 # which is how the generic variant feeds white colours and (0, 0) UVs to primitives without them.
 SPARE_UV, SPARE_COLOR = 14, 15
@@ -61,6 +63,7 @@ class CameraPass:
             colors += [(GL.GL_RGBA32F, GL.GL_RGBA, GL.GL_FLOAT)] * vis_targets
             self.fbo = Framebuffer(width, height, colors, (GL.GL_DEPTH_COMPONENT32F, True))
             self._fbo_key = key
+        assert self.fbo is not None
         return self.fbo
 
     def _white_texture(self) -> int:
@@ -100,7 +103,9 @@ class CameraPass:
         frame = _FrameState(plan, maps, params, view_proj, cam.position - plan.origin, vis_targets,
                             generic=not params.optimize)
         units = self._bind_maps(maps)
-        opaque, blended = [], []
+        # (GPU primitive, instance-buffer slot, scene instance) per visible instance
+        opaque: list[tuple[int, int, int]] = []
+        blended: list[tuple[int, int, int]] = []
         for inst in plan.visible:
             p, slot = gpu.slot_of[inst]
             mat = gpu.scene.primitives[gpu.scene.instances[inst].primitive].material
@@ -109,7 +114,8 @@ class CameraPass:
         if blended:
             # Back to front by box centre; no depth or visibility writes for transparent surfaces.
             eye = cam.position
-            blended.sort(key=lambda e: -np.linalg.norm(gpu.scene.instances[e[2]].bounds.mean(0) - eye))
+            blended.sort(key=lambda e: -float(np.linalg.norm(
+                gpu.scene.instances[e[2]].bounds.mean(0) - eye)))
             GL.glEnable(GL.GL_BLEND)
             GL.glBlendFuncSeparate(GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA, GL.GL_ONE,
                                    GL.GL_ONE_MINUS_SRC_ALPHA)
@@ -141,7 +147,7 @@ class CameraPass:
             receive = gpu.scene.instances[gp.instances[slots[0]]].receive_shadow
             defines = frame.defines(gp, mat)
             self.variants.add(tuple(sorted(defines.items())))
-            prog = self.programs.get(VERT, FRAG, defines)
+            prog = self.programs.get("camera_pass.vert", "camera_pass.frag", defines)
             prog.use()
             if prog.id not in frame.ready:  # uniforms stay with the program: once per frame
                 frame.set_frame_uniforms(prog, units)
@@ -169,9 +175,12 @@ class CameraPass:
             gp.draw(None if len(slots) == len(gp.instances) else slots)
         GL.glDisable(GL.GL_CULL_FACE)
 
-    def read(self, outputs: list[str], n_lights: int, alpha: bool, camera) -> CameraOutputs:
+    def read(self, outputs: Sequence[str], n_lights: int, alpha: bool,
+             camera: Camera) -> CameraOutputs:
         """Read back the requested outputs of the last frame."""
         fb = self.fbo
+        if fb is None:
+            raise RenderError("the camera pass has not drawn a frame to read")
         out = CameraOutputs()
         if "color" in outputs:
             rgba = fb.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
@@ -226,27 +235,26 @@ class _FrameState:
         shadows = params.shadows
         self.pcf = bool(maps) and (generic or shadows.filter == "pcf")
         self.pcf_radius = shadows.pcf_kernel // 2 if shadows.filter == "pcf" else 0
-        # Map slot of each light: >= 0 2D index, <= -2 cube index, -1 none.
-        slot, i2, ic = {}, 0, 0
+        # Each light's slot among the 2D maps and among the cube maps, in the order of `maps`;
+        # -1 where it has no map of that kind.
+        slot_2d: dict[int, int] = {}
+        slot_cube: dict[int, int] = {}
         for m in maps:
-            if m.plan.kind == "cube":
-                slot[m.plan.index] = -2 - ic
-                ic += 1
-            else:
-                slot[m.plan.index] = i2
-                i2 += 1
-        self.map_slot = [slot.get(lp.index, -1) for lp in plan.lights]
+            slots = slot_cube if m.plan.kind == "cube" else slot_2d
+            slots[m.plan.index] = len(slots)
+        self.map_2d = [slot_2d.get(lp.index, -1) for lp in plan.lights]
+        self.map_cube = [slot_cube.get(lp.index, -1) for lp in plan.lights]
 
     def has_uv(self, gp: GpuPrimitive) -> bool:
         return self.generic or gp.texture is not None
 
-    def alpha_mask(self, mat) -> bool:
+    def alpha_mask(self, mat: Material) -> bool:
         return self.generic or mat.alpha_mode == "MASK"
 
-    def defines(self, gp: GpuPrimitive, mat) -> dict:
+    def defines(self, gp: GpuPrimitive, mat: Material) -> dict[str, int | bool | str]:
         shadows = self.params.shadows
         has_color = gp.mesh.color_0 is not None
-        d = {
+        d: dict[str, int | bool | str] = {
             "NUM_LIGHTS": len(self.plan.lights),
             "NUM_MAPS_2D": self.n_2d,
             "NUM_MAPS_CUBE": self.n_cube,
@@ -265,7 +273,8 @@ class _FrameState:
         }
         if self.plan.lights:
             d["LIGHT_TYPES"] = ", ".join(str(LIGHT_TYPES[lp.light.type]) for lp in self.plan.lights)
-            d["LIGHT_MAPS"] = ", ".join(str(m) for m in self.map_slot)
+            d["LIGHT_MAPS_2D"] = ", ".join(str(m) for m in self.map_2d)
+            d["LIGHT_MAPS_CUBE"] = ", ".join(str(m) for m in self.map_cube)
         if d["HAS_UV"]:
             d["LOC_UV"] = gp.loc_uv if gp.texture is not None else SPARE_UV
         if d["HAS_COLOR"]:
@@ -304,9 +313,10 @@ class _FrameState:
             prog.set("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d])
             if self.pcf_radius > 0:
                 prog.set("u_map2d_view", [m.plan.view for m in two_d])
-            prog.set("u_map2d_range", [(m.plan.near, m.plan.far, 0.0, m.plan.size) for m in two_d])
+            prog.set("u_map2d_range",
+                     [(m.plan.near, m.plan.far, 0.0, m.plan.map_size) for m in two_d])
             prog.set("u_map2d_texel", [m.plan.texel for m in two_d])
         if cubes:
             prog.set("u_mapcube", [units[self.maps.index(m)] for m in cubes])
             prog.set("u_mapcube_position", [m.plan.position for m in cubes])
-            prog.set("u_mapcube_range", [(m.plan.near, m.plan.far, m.plan.size) for m in cubes])
+            prog.set("u_mapcube_range", [(m.plan.near, m.plan.far, m.plan.map_size) for m in cubes])

@@ -13,20 +13,19 @@ import numpy as np
 from OpenGL import GL
 
 from .. import encodings
+from ..gl.programs import ProgramCache
 from ..gl.resources import Framebuffer, GpuScene
 from ..params import ShadowParams
-from ..plan import LightPlan
-from ..gl.programs import ProgramCache
-
-VERT = ("light_pass.vert",)
-FRAG = ("depth_encoding.glsl", "light_pass.frag")
+from ..plan import LightShadow
+from ..scene import Material
 
 
 @dataclass(eq=False)
 class ShadowMap:
-    """A rendered map: ``texture`` is the texture to sample (colour or depth), ``target`` its type."""
+    """A rendered map: ``texture`` is the texture to sample (colour or depth), ``target`` its
+    type."""
 
-    plan: LightPlan
+    plan: LightShadow
     fbo: Framebuffer
     encoding: str
 
@@ -47,7 +46,7 @@ class ShadowMap:
             Row 0 is the top of the light's view (+Y of the light).
         """
         faces = range(6) if self.plan.kind == "cube" else [None]
-        out = []
+        out: list[np.ndarray] = []
         for face in faces:
             if face is not None:
                 if face not in self.plan.faces:
@@ -107,7 +106,7 @@ class LightPass:
             if not fbs:
                 del self.pool[key]
 
-    def render(self, gpu: GpuScene, plans: list[LightPlan], shadows: ShadowParams
+    def render(self, gpu: GpuScene, plans: list[LightShadow], shadows: ShadowParams
                ) -> list[ShadowMap]:
         """Render the maps of every light that has one; lights without a plan get no map."""
         maps = []
@@ -122,9 +121,11 @@ class LightPass:
         for lp in plans:
             if lp.kind is None:
                 continue
-            fb = self._framebuffer((lp.kind, lp.size, shadows.encoding, linear), taken)
+            fb = self._framebuffer((lp.kind, lp.map_size, shadows.encoding, linear), taken)
             taken.add(id(fb))
-            views = [(f, lp.face_views[f]) for f in lp.faces] if lp.kind == "cube" else [(None, lp.view)]
+            views: list[tuple[int | None, np.ndarray]] = [(None, lp.view)]
+            if lp.kind == "cube":
+                views = [(f, lp.face_views[f]) for f in lp.faces]
             for face, view in views:
                 if face is None:
                     fb.bind()
@@ -138,7 +139,7 @@ class LightPass:
         self._trim(taken)
         return maps
 
-    def _draw_casters(self, gpu: GpuScene, lp: LightPlan, view: np.ndarray,
+    def _draw_casters(self, gpu: GpuScene, lp: LightShadow, view: np.ndarray,
                       shadows: ShadowParams) -> None:
         perspective = lp.kind != "ortho"
         po_factor, po_units = shadows.bias.polygon_offset
@@ -153,7 +154,8 @@ class LightPass:
             cutoff = _shadow_cutoff(mat)
             if cutoff is not None and gp.texture is None and mat.base_color[3] < cutoff:
                 continue  # wholly transparent for shadows
-            alpha_test = cutoff is not None and gp.texture is not None
+            texture = gp.texture if cutoff is not None else None
+            alpha_test = texture is not None
             defines = {
                 "ENCODING": encodings.ENCODING_ID[shadows.encoding],
                 "ALPHA_TEST": alpha_test,
@@ -163,7 +165,7 @@ class LightPass:
                 "POLYGON_OFFSET": polygon_offset,
             }
             self.variants.add(tuple(sorted(defines.items())))
-            prog = self.programs.get(VERT, FRAG, defines)
+            prog = self.programs.get("light_pass.vert", "light_pass.frag", defines)
             prog.use()
             prog.set("u_light_view", view)
             prog.set("u_light_proj", lp.proj)
@@ -172,9 +174,9 @@ class LightPass:
                 prog.set("u_depth_range", (lp.near, lp.far))
             if polygon_offset:
                 prog.set("u_polygon_offset", (po_factor, po_units))
-            if alpha_test:
+            if texture is not None and cutoff is not None:
                 GL.glActiveTexture(GL.GL_TEXTURE0)
-                gp.texture._bind()
+                texture._bind()
                 prog.set("u_base_texture", 0)
                 prog.set("u_base_alpha", float(mat.base_color[3]))
                 prog.set("u_alpha_cutoff", cutoff)
@@ -187,7 +189,7 @@ class LightPass:
         self.pool.clear()
 
 
-def _shadow_cutoff(material) -> float | None:
+def _shadow_cutoff(material: Material) -> float | None:
     """Alpha below which a material casts no shadow: its cutoff for MASK, 0.5 for BLEND."""
     if material.alpha_mode == "MASK":
         return float(material.alpha_cutoff)

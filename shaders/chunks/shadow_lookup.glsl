@@ -2,6 +2,10 @@
 // with PCF. `ref` is the receiver's linear light depth minus its bias; `dref` is how `ref` changes
 // per texel of offset along the map's two axes (receiver-plane depth bias), so every PCF tap is
 // compared against the receiver's own plane instead of a bias widened for the whole kernel.
+//
+// The including stage declares ENCODING, FILTER_PCF and PCF_RADIUS.
+#include "chunks/depth_encoding.glsl"
+
 #if ENCODING == ENC_DEPTH
 #define MAP2D sampler2DShadow
 #define MAPCUBE samplerCubeShadow

@@ -8,21 +8,26 @@
 // ENC_RGBA8 32 bits in RGBA, most significant byte in R (WebGL guide, Shadow_highp.js).
 // ENC_DEPTH a 32-bit float depth texture compared in hardware (OpenGL guide).
 //
+// The ids (ENC_*) and steps (ENC_STEP_*) come from Python (renderer/shader_constants.py, CPU
+// mirror in renderer/encodings.py); the including stage declares ENCODING.
+//
 // The byte packings are exact: scaling by powers of two and fract() lose no bits in float32,
 // each channel keeps one byte (the guide's bit mask), and bytes are written as byte/255 so that
 // the UNORM8 store rounds back to the same byte.
-#define ENC_DEPTH 0
-#define ENC_R8 1
-#define ENC_RG8 2
-#define ENC_RGB8 3
-#define ENC_RGBA8 4
 
+// One step of the stored depth: the unit of the quantisation bias and of the polygon offset.
 #if ENCODING == ENC_R8
-const float ENC_STEP = 1.0 / 255.0;
+const float ENC_STEP = ENC_STEP_R8;
 #elif ENCODING == ENC_RG8
-const float ENC_STEP = 1.0 / 2550.0;
+const float ENC_STEP = ENC_STEP_RG8;
+#elif ENCODING == ENC_RGB8
+const float ENC_STEP = ENC_STEP_RGB8;
+#elif ENCODING == ENC_RGBA8
+const float ENC_STEP = ENC_STEP_RGBA8;
+#elif ENCODING == ENC_DEPTH
+const float ENC_STEP = ENC_STEP_DEPTH;
 #else
-const float ENC_STEP = 1.0 / 16777216.0;  // float32 carries 24 significant bits
+#error ENCODING is none of the ENC_* ids
 #endif
 
 // Four bytes of t: b0 the most significant, each as byte/256.

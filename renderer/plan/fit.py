@@ -1,0 +1,333 @@
+"""Shadow frusta, one way per kind of light, each in two pure steps.
+
+``reach_*`` finds the light's region over the visible receivers: which boxes lie inside it, how
+near each is to the light, how deep the receivers go. The plan then chooses the casters from that
+(:func:`~.culling.select_casters`, the same for every kind), and ``fit_*`` tightens the region to
+those casters and sizes the map: an orthographic box for directional lights, as in the
+packed-depth blog; an off-axis perspective frustum for spot lights; six cube faces for point
+lights and very wide spots. Either step may instead return a :class:`Skip` with its reason.
+
+A new kind of fit (cascades, say) is a :class:`ShadowMethod` beside these: a reach step (perhaps
+an existing one) and a fit step; :func:`choose_method` picks it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Generic, TypeVar
+
+import numpy as np
+
+from .geometry import (
+    CUBE_FACE_PLANES,
+    CUBE_FACES,
+    boxes_in_frustum,
+    cube_face_views,
+    face_meets_cone,
+    frustum,
+    ortho,
+    perspective,
+    pose_from_direction,
+    pyramid_planes,
+    transform_points,
+)
+
+if TYPE_CHECKING:  # the lights import this package's geometry: types only, no import cycle
+    from ..lights import Light
+    from .context import PlanContext
+
+# Spot lights wider than this (half-angle) are shadowed with cube faces: a single perspective map
+# would spend most of its texels near the frustum's edges.
+MAX_SPOT_HALF_ANGLE = math.radians(60.0)
+
+
+@dataclass(frozen=True)
+class Skip:
+    """No light pass, for ``reason`` ("no_visible_receiver", "no_caster_in_frustum", ...)."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class Subject:
+    """The light being fitted and what it must cover.
+
+    Attributes
+    ----------
+    light : Light
+    position : ndarray, shape (3,)
+        The light's position relative to the origin.
+    receivers : ndarray, shape (R,), int
+        Receivers that matter (R >= 1): those the camera sees (:meth:`PlanContext.receivers`).
+    """
+
+    light: Light
+    position: np.ndarray
+    receivers: np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class Reach:
+    """A light's region over its receivers, before casters are chosen.
+
+    Attributes
+    ----------
+    in_frustum : ndarray, shape (N,), bool
+        Boxes that may lie inside the region (conservative).
+    depth_min : ndarray, shape (N,)
+        Nearest light depth of each box (0 where a box reaches behind the light).
+    far : float
+        Deepest receiver depth that matters: boxes wholly beyond it shadow nothing seen.
+    skipped : mapping of str to int
+        Work the reach itself left out (e.g. cube faces), reported with the casters' counts.
+    """
+
+    in_frustum: np.ndarray
+    depth_min: np.ndarray
+    far: float
+    skipped: Mapping[str, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A fitted shadow map (see :class:`~.plan.LightShadow` for the fields)."""
+
+    kind: str
+    view: np.ndarray
+    proj: np.ndarray
+    near: float
+    far: float
+    map_size: int
+    texel: tuple[float, float]
+    faces: list[int] = field(default_factory=list)
+    face_views: list[np.ndarray] = field(default_factory=list)
+
+
+R = TypeVar("R", bound=Reach)
+
+
+@dataclass(frozen=True)
+class ShadowMethod(Generic[R]):
+    """One way of shadowing a light: its reach, then its fit to the chosen casters.
+
+    Attributes
+    ----------
+    reach : callable (ctx, subject) -> Reach or Skip
+    fit : callable (ctx, subject, reach, fit_mask) -> Fit or Skip
+        ``fit_mask`` (N,) bool marks the casters that can shadow a receiver (at least one).
+    """
+
+    reach: Callable[[PlanContext, Subject], R | Skip]
+    fit: Callable[[PlanContext, Subject, R, np.ndarray], Fit | Skip]
+
+
+# --------------------------------------------------------------------------------------------
+# Directional: an orthographic box along the light
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class DirectionalReach(Reach):
+    """Attributes: ``view`` (4, 4) world to light; ``lo``, ``hi`` (N, 3) light-view box bounds;
+    ``window`` (x0, y0, x1, y1), the lateral extent of the seen receivers."""
+
+    view: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    window: tuple[float, float, float, float]
+
+
+def reach_directional(ctx: PlanContext, s: Subject) -> DirectionalReach:
+    """The light-view column over the seen receivers, clipped laterally and in depth to what the
+    camera frustum can show."""
+    rec = s.receivers
+    view = np.linalg.inv(pose_from_direction(np.zeros(3), s.light.direction))
+    lc = transform_points(view, ctx.corners)  # (N, 8, 3) light view
+    lo = lc.min(axis=1)
+    hi = lc.max(axis=1)
+    # Lateral region: the visible receivers, clipped to what the camera frustum can show.
+    r_lo, r_hi = lo[rec].min(axis=0), hi[rec].max(axis=0)
+    f = transform_points(view, ctx.frustum_corners)
+    x0, y0 = np.maximum(r_lo[:2], f.min(axis=0)[:2])
+    x1, y1 = np.minimum(r_hi[:2], f.max(axis=0)[:2])
+    if x1 <= x0 or y1 <= y0:
+        x0, y0 = r_lo[:2]
+        x1, y1 = r_hi[:2]
+    # Receiver depth range (light depth is -z), no deeper than the camera can see.
+    far = float(min(-r_lo[2], -f.min(axis=0)[2]))
+    in_frustum = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
+    return DirectionalReach(in_frustum=in_frustum, depth_min=-hi[:, 2], far=far, view=view,
+                            lo=lo, hi=hi, window=(x0, y0, x1, y1))
+
+
+def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
+                    fit: np.ndarray) -> Fit | Skip:
+    """An orthographic box: the window narrowed to the casters' lateral extent, from the nearest
+    caster to the farthest receiver, padded by the filter margin."""
+    x0, y0, x1, y1 = reach.window
+    # A directional shadow falls straight along the light: only where casters are, laterally.
+    x0, y0 = np.maximum([x0, y0], reach.lo[fit, :2].min(axis=0))
+    x1, y1 = np.minimum([x1, y1], reach.hi[fit, :2].max(axis=0))
+    if x1 <= x0 or y1 <= y0:
+        return Skip("no_caster_in_frustum")
+    near, far = float(reach.depth_min[fit].min()), reach.far
+    extent = max(x1 - x0, y1 - y0, 1e-300)
+    size = ctx.map_size_for(extent, s.receivers)
+    pad = ctx.margin(extent, size)
+    x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
+    # A little depth slack so that the nearest caster and farthest receiver are not clipped.
+    span = max(far - near, 1e-300)
+    near, far = near - span * 1e-3, far + span * 1e-3
+    return Fit(kind="ortho", view=reach.view, proj=ortho(x0, x1, y0, y1, near, far), near=near,
+               far=far, map_size=size, texel=(max(x1 - x0, y1 - y0) / size, 0.0))
+
+
+# --------------------------------------------------------------------------------------------
+# Spot: an off-axis perspective frustum inside the cone
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpotReach(Reach):
+    """Attributes: ``view`` (4, 4) world to light; ``lc`` (N, 8, 3) box corners in light view;
+    ``depth`` (N, 8) their light depth; ``a_lo``, ``a_hi`` (2,) slope bounds (x/-z, y/-z) of the
+    receivers inside the cone."""
+
+    view: np.ndarray
+    lc: np.ndarray
+    depth: np.ndarray
+    a_lo: np.ndarray
+    a_hi: np.ndarray
+
+
+def reach_spot(ctx: PlanContext, s: Subject) -> SpotReach | Skip:
+    """The pyramid from the light over the receivers inside its cone; a skip when every
+    receiver is behind the light or outside the cone."""
+    rec = s.receivers
+    view = np.linalg.inv(pose_from_direction(s.position, s.light.direction))
+    lc = transform_points(view, ctx.corners)
+    depth = -lc[..., 2]  # (N, 8)
+    tan_cone = math.tan(s.light.outer_cone)
+    far = float(depth[rec].max())
+    if far <= 0:
+        return Skip("no_visible_receiver")  # every receiver is behind the light
+    # Receivers inside the cone's bounding pyramid: fit the frustum to their angular extent.
+    rc = lc[rec].reshape(-1, 3)
+    if np.all(-rc[:, 2] > 0):
+        ang = rc[:, :2] / (-rc[:, 2:3])
+        a_lo = np.maximum(ang.min(axis=0), -tan_cone)
+        a_hi = np.minimum(ang.max(axis=0), tan_cone)
+    else:  # a receiver straddles the light's plane: cover the whole cone
+        a_lo = np.array([-tan_cone, -tan_cone])
+        a_hi = np.array([tan_cone, tan_cone])
+    if np.any(a_hi <= a_lo):
+        return Skip("no_visible_receiver")
+    # Casters inside the fitted pyramid (conservative: boxes against its four side planes).
+    in_frustum = boxes_in_frustum(lc, pyramid_planes(a_lo, a_hi))
+    depth_min = np.where(np.all(depth > 0, axis=1), depth.min(axis=1), 0.0)
+    return SpotReach(in_frustum=in_frustum, depth_min=depth_min, far=far, view=view, lc=lc,
+                     depth=depth, a_lo=a_lo, a_hi=a_hi)
+
+
+def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) -> Fit | Skip:
+    """An off-axis frustum: the pyramid narrowed to the casters' slopes, from the nearest caster
+    to the farthest receiver, padded by the filter margin."""
+    a_lo, a_hi = reach.a_lo, reach.a_hi
+    # Shadows lie within the casters' angular extent, when all of them are in front of the light.
+    cc = reach.lc[fit].reshape(-1, 3)
+    if np.all(-cc[:, 2] > 0):
+        ang = cc[:, :2] / (-cc[:, 2:3])
+        a_lo = np.maximum(a_lo, ang.min(axis=0))
+        a_hi = np.minimum(a_hi, ang.max(axis=0))
+        if np.any(a_hi <= a_lo):
+            return Skip("no_caster_in_frustum")
+    far = reach.far * 1.001
+    near = float(max(reach.depth_min[fit].min() * 0.999, far * 1e-5))
+    extent = float(max(a_hi[0] - a_lo[0], a_hi[1] - a_lo[1]))
+    # Slopes become world sizes at a typical receiver's light depth.
+    d_light = float(np.median(reach.depth[s.receivers].mean(axis=1).clip(min=near)))
+    size = ctx.map_size_for(extent * d_light, s.receivers)
+    pad = ctx.margin(extent, size)
+    a_lo, a_hi = a_lo - pad, a_hi + pad
+    proj = frustum(a_lo[0] * near, a_hi[0] * near, a_lo[1] * near, a_hi[1] * near, near, far)
+    return Fit(kind="perspective", view=reach.view, proj=proj, near=near, far=far, map_size=size,
+               texel=(0.0, float(max(a_hi - a_lo)) / size))
+
+
+# --------------------------------------------------------------------------------------------
+# Cube: six 90-degree faces (point lights, wide spots)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class CubeReach(Reach):
+    """Attributes: ``face_views`` the six face view matrices (4, 4); ``faces`` the faces to
+    render; ``cheb`` (N, 8) Chebyshev distance of every box corner from the light."""
+
+    face_views: list[np.ndarray]
+    faces: list[int]
+    cheb: np.ndarray
+
+
+def reach_cube(ctx: PlanContext, s: Subject) -> CubeReach | Skip:
+    """The faces that meet the cone (spots) and, with ``optimize``, show a visible receiver; a
+    skip when none does."""
+    light, position = s.light, s.position
+    cheb = np.abs(ctx.corners - position).max(axis=2)  # (N, 8)
+    # Chebyshev distance from the light to each box (0 when the light is inside it): a box's
+    # depth on the face that sees it is at least that.
+    gap = np.maximum(np.maximum(ctx.bounds[:, 0] - position, position - ctx.bounds[:, 1]), 0)
+    depth_min = gap.max(axis=1)
+    far = float(cheb[s.receivers].max()) * 1.001
+    face_views = cube_face_views(position)
+    cone_cos = math.cos(light.outer_cone) if light.type == "spot" else -1.0
+    faces: list[int] = []
+    without_receivers = 0
+    in_frustum = np.zeros(len(ctx.corners), bool)
+    for f, view in enumerate(face_views):
+        forward = np.array(CUBE_FACES[f][0], float)
+        if light.type == "spot" and not face_meets_cone(forward, light.direction, cone_cos):
+            continue  # outside the cone: never lit, not worth a count
+        inside = boxes_in_frustum(transform_points(view, ctx.corners), CUBE_FACE_PLANES)
+        if ctx.optimize and not (inside & ctx.in_view & ctx.receive).any():
+            without_receivers += 1
+            continue
+        faces.append(f)
+        in_frustum |= inside
+    if not faces:
+        return Skip("no_visible_receiver")
+    skipped = {"faces_without_receivers": without_receivers} if without_receivers else {}
+    return CubeReach(in_frustum=in_frustum, depth_min=depth_min, far=far, skipped=skipped,
+                     face_views=face_views, faces=faces, cheb=cheb)
+
+
+def fit_cube(ctx: PlanContext, s: Subject, reach: CubeReach, fit: np.ndarray) -> Fit:
+    """Six 90-degree faces from the nearest caster to the farthest receiver (Chebyshev depth,
+    the depth along the face axis)."""
+    far = reach.far
+    near = float(max(reach.depth_min[fit].min() * 0.999, far * 1e-5))
+    d_light = float(np.median(reach.cheb[s.receivers].mean(axis=1).clip(min=near)))
+    # A face spans two units at unit depth.
+    size = ctx.map_size_for(2 * d_light, s.receivers, cube=True)
+    return Fit(kind="cube", view=np.eye(4), proj=perspective(math.pi / 2, 1.0, near, far),
+               near=near, far=far, map_size=size, texel=(0.0, 2.0 / size), faces=list(reach.faces),
+               face_views=list(reach.face_views))
+
+
+# --------------------------------------------------------------------------------------------
+
+DIRECTIONAL: ShadowMethod[DirectionalReach] = ShadowMethod(reach_directional, fit_directional)
+SPOT: ShadowMethod[SpotReach] = ShadowMethod(reach_spot, fit_spot)
+CUBE: ShadowMethod[CubeReach] = ShadowMethod(reach_cube, fit_cube)
+
+
+def choose_method(ctx: PlanContext, light: Light) -> ShadowMethod:
+    """How a light is shadowed: directional lights with a box, spots up to
+    :data:`MAX_SPOT_HALF_ANGLE` with a frustum, point lights and wider spots with a cube."""
+    if light.type == "directional":
+        return DIRECTIONAL
+    if light.type == "spot" and light.outer_cone <= MAX_SPOT_HALF_ANGLE:
+        return SPOT
+    return CUBE

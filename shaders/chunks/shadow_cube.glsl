@@ -1,0 +1,55 @@
+// Visibility of a receiver in the camera pass's cube shadow maps (point lights, wide spots).
+//
+// The including stage declares NUM_MAPS_CUBE, NORMAL_OFFSET and PCF_RADIUS (and what the
+// included chunks use).
+#include "chunks/shadow_lookup.glsl"
+#include "chunks/lighting.glsl"
+
+#if NUM_MAPS_CUBE > 0
+uniform MAPCUBE u_mapcube[NUM_MAPS_CUBE];
+uniform vec3 u_mapcube_position[NUM_MAPS_CUBE];
+uniform vec3 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size
+
+// The shadow lookup in cube map m, one case per slot (see visibility_2d in chunks/shadow_2d.glsl):
+// constant sampler-array indices only.
+#define MAPCUBE_SLOT(K) min(K, NUM_MAPS_CUBE - 1)
+#define MAPCUBE_CASE(K) if (K < NUM_MAPS_CUBE && m == K) return shadow_cube(u_mapcube[MAPCUBE_SLOT(K)], d, ref, dref, u * texel, v * texel);
+
+// Shadow of the receiver at p in cube map m.
+float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
+    vec3 range = u_mapcube_range[m];
+    vec3 d = p - u_mapcube_position[m];
+    vec3 a = abs(d);
+    float depth = max(a.x, max(a.y, a.z));
+    float texel = 2.0 * depth / range.z;  // 90-degree faces
+#if NORMAL_OFFSET
+    vec3 q = p + ng * (u_bias.w * texel * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
+    d = q - u_mapcube_position[m];
+    a = abs(d);
+    depth = max(a.x, max(a.y, a.z));
+#endif
+    // The face's two lateral axes.
+    vec3 u;
+    vec3 v;
+    if (a.x >= a.y && a.x >= a.z) {
+        u = vec3(0.0, 1.0, 0.0); v = vec3(0.0, 0.0, 1.0);
+    } else if (a.y >= a.z) {
+        u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 0.0, 1.0);
+    } else {
+        u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 1.0, 0.0);
+    }
+    float span = range.y - range.x;
+    float t = (depth - range.x) / span;
+    float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+#if PCF_RADIUS > 0
+    // A tap moved by w across the face meets the receiver's plane at face depth
+    // depth (n . d) / (n . (d + w)): to first order a change of -depth (n . w) / (n . d).
+    vec2 slope = -depth * vec2(dot(ng, u), dot(ng, v)) / min(dot(ng, d), -1e-30);
+    vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
+#else
+    vec2 dref = vec2(0.0);
+#endif
+    FOR_EACH_SLOT(MAPCUBE_CASE)
+    return 1.0;
+}
+#endif

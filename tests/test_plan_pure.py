@@ -1,0 +1,340 @@
+"""The render plan without GL: fits are pure and deterministic, skips give their reasons, and the
+geometry helpers match hand-computed matrices."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from shadowmap.renderer import RenderParams, RequestError
+from shadowmap.renderer import testing as T
+from shadowmap.renderer.camera import resolve_camera
+from shadowmap.renderer.lights import resolve_lights
+from shadowmap.renderer.plan import LightShadow, RenderPlan, make_plan
+from shadowmap.renderer.plan.context import PlanContext
+from shadowmap.renderer.plan.fit import CUBE, DIRECTIONAL, SPOT, choose_method
+from shadowmap.renderer.plan.geometry import (
+    CUBE_FACES,
+    box_corners,
+    boxes_in_frustum,
+    cube_face_views,
+    face_meets_cone,
+    frustum,
+    frustum_planes,
+    look_at,
+    ortho,
+    perspective,
+    pose_from_direction,
+    pyramid_planes,
+    transform_points,
+)
+
+CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
+SUN = {"direction": [-0.5, -1, -0.3]}
+SPOT_40 = {"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 40}
+WIDE_SPOT = {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0],
+             "outer_cone_deg": 89.5}
+POINT = {"type": "point", "position": [0.0, 2.0, 0.0]}
+AWAY = {"type": "spot", "position": [0, 3, 0], "direction": [0, 1, 0], "outer_cone_deg": 30}
+ROOM_CAMERA = {"eye": [3.0, 3.5, 3.0], "target": [-2, -1, -2], "yfov_deg": 45}
+
+
+def inputs(scene, camera=CAMERA, lights=None, **fields):
+    """(scene, camera, lights, origin, params) as the renderer resolves them."""
+    params = RenderParams(camera=camera, lights=lights, **fields)
+    cam = resolve_camera(params.camera, scene, params.width, params.height)
+    lo, hi = scene.bounds
+    return scene, cam, resolve_lights(params.lights, scene), (lo + hi) / 2, params
+
+
+def plan(scene, camera=CAMERA, lights=None, **fields) -> RenderPlan:
+    return make_plan(*inputs(scene, camera, lights, **fields))
+
+
+def light(scene, light_params, camera=CAMERA, **fields) -> LightShadow:
+    return plan(scene, camera, [light_params], **fields).lights[0]
+
+
+def assert_same(a, b, path="value"):
+    """Exact equality through dataclasses, dicts, sequences and arrays."""
+    if dataclasses.is_dataclass(a) and not isinstance(a, type):
+        assert type(a) is type(b), path
+        for f in dataclasses.fields(a):
+            assert_same(getattr(a, f.name), getattr(b, f.name), f"{path}.{f.name}")
+    elif isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype, path
+        np.testing.assert_array_equal(a, b, err_msg=path)
+    elif isinstance(a, dict):
+        assert list(a) == list(b), path
+        for k in a:
+            assert_same(a[k], b[k], f"{path}[{k!r}]")
+    elif isinstance(a, (list, tuple)):
+        assert type(a) is type(b) and len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            assert_same(x, y, f"{path}[{i}]")
+    else:
+        assert a == b, f"{path}: {a!r} != {b!r}"
+
+
+def snapshot(scene, camera, lights, origin, params) -> dict:
+    """Copies of everything the planner reads."""
+    return {
+        "matrices": [i.matrix.copy() for i in scene.instances],
+        "bounds": [i.bounds.copy() for i in scene.instances],
+        "flags": [(i.cast_shadow, i.receive_shadow) for i in scene.instances],
+        "positions": [p.positions.copy() for p in scene.primitives],
+        # No cache or other attribute is written into the scene's objects.
+        "primitive_attrs": [sorted(vars(p)) for p in scene.primitives],
+        "instance_attrs": [sorted(vars(i)) for i in scene.instances],
+        "camera": dataclasses.asdict(camera),
+        "lights": [dataclasses.asdict(lt) for lt in lights],
+        "origin": origin.copy(),
+        "params": params.model_dump(),
+    }
+
+
+SCENES = {
+    "caster_on_ground": (T.caster_on_ground, CAMERA, [SUN, SPOT_40, WIDE_SPOT, POINT]),
+    "room": (T.room, ROOM_CAMERA, [POINT, SUN, {**SPOT_40, "position": [0.0, 2.0, 0.0]}]),
+    "many_small_objects": (lambda: T.many_small_objects(50), CAMERA, [SUN, SPOT_40]),
+}
+
+
+# -- purity -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("optimize", [True, False])
+def test_fits_are_deterministic_and_leave_inputs_unchanged(name, optimize):
+    build, camera, lights = SCENES[name]
+    args = inputs(build(), camera, lights, optimize=optimize)
+    before = snapshot(*args)
+    first = make_plan(*args)
+    second = make_plan(*args)
+    assert_same(first, second)
+    assert_same(snapshot(*args), before)
+    # Freshly built inputs give the same plan as reused ones (nothing is cached in the inputs).
+    assert_same(make_plan(*inputs(build(), camera, lights, optimize=optimize)), first)
+    assert all(lp.kind is not None for lp in first.lights), first.to_dict()
+
+
+def test_each_light_is_planned_on_its_own():
+    scene = T.caster_on_ground()
+    together = plan(scene, lights=[SUN, SPOT_40, POINT, AWAY]).lights
+    for i, lt in enumerate([SUN, SPOT_40, POINT, AWAY]):
+        alone = light(scene, lt)
+        assert_same(dataclasses.replace(alone, index=i), together[i])
+
+
+def test_plan_results_and_shared_arrays_are_read_only():
+    lp = light(T.caster_on_ground(), SUN)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        lp.map_size = 1  # type: ignore[misc]
+    ctx = PlanContext.build(*inputs(T.caster_on_ground())[:2], np.zeros(3), RenderParams())
+    for a in (ctx.bounds, ctx.corners, ctx.cast, ctx.receive, ctx.in_view, ctx.frustum_corners):
+        with pytest.raises(ValueError):
+            a[...] = 0
+
+
+# -- skips ------------------------------------------------------------------------------------
+
+
+def test_light_with_cast_shadows_false_has_no_pass():
+    lp = light(T.caster_on_ground(), {**SUN, "cast_shadows": False})
+    assert lp.kind is None and lp.reason == "cast_shadows_false"
+    assert lp.to_dict() == {"type": "directional", "shadow_map": None,
+                            "skipped_pass": "cast_shadows_false"}
+    assert lp.casters == [] and lp.map_size == 0
+
+
+def test_scene_without_casters_has_no_pass():
+    scene = T.caster_on_ground()
+    for inst in scene.instances:
+        inst.cast_shadow = False
+    p = plan(scene, lights=[SUN, SPOT_40, POINT])
+    assert [lp.reason for lp in p.lights] == ["no_caster"] * 3
+    assert p.map_lights == [] and p.to_dict()["light_passes"] == 0
+
+
+@pytest.mark.parametrize("optimize", [True, False])
+def test_spot_pointing_away_reaches_no_visible_receiver(optimize):
+    lp = light(T.caster_on_ground(), AWAY, optimize=optimize)
+    assert lp.to_dict() == {"type": "spot", "shadow_map": None,
+                            "skipped_pass": "no_visible_receiver"}
+
+
+def test_spot_over_bare_ground_has_no_caster_in_frustum():
+    # The narrow cone sees only the ground, which faces the light: it casts onto nothing seen.
+    narrow = {"type": "spot", "position": [2.5, 3, 2.5], "direction": [0, -1, 0],
+              "outer_cone_deg": 10}
+    assert light(T.caster_on_ground(), narrow).reason == "no_caster_in_frustum"
+
+
+# -- what the fits leave out ------------------------------------------------------------------
+
+
+def test_casters_far_outside_the_view_are_counted_not_drawn():
+    scene = T.many_small_objects(200)
+    p = plan(scene, lights=[SUN])
+    assert p.to_dict()["camera_pass"]["skipped"] == {"outside_view": 200}
+    d = p.lights[0].to_dict()
+    assert d["casters"] == 1 and p.lights[0].casters == [1]
+    assert d["skipped"] == {"outside_frustum": 200, "plane_facing_receivers": 1}
+    off = plan(scene, lights=[SUN], optimize=False).lights[0]
+    assert len(off.casters) == 202 and off.skipped == {}
+    # The frustum is fitted the same way either way.
+    assert_same((off.view, off.proj, off.map_size), (p.lights[0].view, p.lights[0].proj,
+                                                     p.lights[0].map_size))
+
+
+def test_non_casters_are_counted():
+    lp = light(T.ground_only_receives(), SUN)
+    assert lp.skipped == {"non_caster": 1} and lp.casters == [1, 2]
+
+
+def test_point_light_in_a_room_leaves_out_faces_without_receivers():
+    every = light(T.room(), POINT, ROOM_CAMERA, optimize=False)
+    assert every.faces == [0, 1, 2, 3, 4, 5] and every.to_dict()["faces"] == every.faces
+    seen = light(T.room(), POINT, ROOM_CAMERA)
+    assert 0 < len(seen.faces) < 6
+    assert seen.skipped["faces_without_receivers"] == 6 - len(seen.faces)
+    assert list(seen.skipped)[0] == "faces_without_receivers"
+    assert_same(seen.face_views, every.face_views)
+
+
+# -- kinds and sizes --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("light_params, kind, method", [
+    (SUN, "ortho", DIRECTIONAL),
+    (SPOT_40, "perspective", SPOT),
+    (WIDE_SPOT, "cube", CUBE),
+    (POINT, "cube", CUBE),
+])
+def test_each_light_kind_gets_its_fit(light_params, kind, method):
+    args = inputs(T.caster_on_ground(), lights=[light_params])
+    ctx = PlanContext.build(args[0], args[1], args[3], args[4])
+    assert choose_method(ctx, args[2][0]) is method
+    lp = make_plan(*args).lights[0]
+    assert lp.kind == kind and lp.reason is None
+    assert set(lp.to_dict()) == {"type", "shadow_map", "map_size", "casters", "skipped", "near",
+                                 "far"} | ({"faces"} if kind == "cube" else set())
+    assert 0 < lp.near < lp.far or kind == "ortho"
+    assert lp.map_size >= 256 and lp.map_size & (lp.map_size - 1) == 0
+
+
+def test_fixed_map_size_is_used_as_given():
+    for lt in (SUN, SPOT_40, POINT):
+        assert light(T.caster_on_ground(), lt, shadows={"map_size": 1024}).map_size == 1024
+
+
+def test_directional_fit_is_along_the_light_with_its_texel_size():
+    scene, camera, lights, origin, params = inputs(T.caster_on_ground(), lights=[SUN])
+    lp = make_plan(scene, camera, lights, origin, params).lights[0]
+    direction = np.array(SUN["direction"]) / np.linalg.norm(SUN["direction"])
+    np.testing.assert_allclose(lp.view[:3, :3] @ direction, [0, 0, -1], atol=1e-12)
+    width, height = 2 / lp.proj[0, 0], 2 / lp.proj[1, 1]
+    assert lp.texel == pytest.approx((max(width, height) / lp.map_size, 0.0))
+    # Every caster's box lies within the map's depth range.
+    for i in lp.casters:
+        corners = transform_points(lp.view, box_corners(scene.instances[i].bounds - origin))
+        assert np.all(-corners[:, 2] >= lp.near)
+
+
+# -- geometry ---------------------------------------------------------------------------------
+
+
+def test_ortho_matches_glortho():
+    np.testing.assert_array_equal(ortho(-1, 1, -1, 1, 1, 3),
+                                  [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, -2], [0, 0, 0, 1]])
+    np.testing.assert_allclose(ortho(0, 4, -2, 0, 0.5, 10.5),
+                               [[0.5, 0, 0, -1], [0, 1, 0, 1], [0, 0, -0.2, -1.1], [0, 0, 0, 1]])
+
+
+def test_frustum_matches_glfrustum():
+    np.testing.assert_array_equal(frustum(-1, 1, -1, 1, 1, 3),
+                                  [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -2, -3], [0, 0, -1, 0]])
+    np.testing.assert_array_equal(frustum(0, 2, 0, 1, 1, 5),
+                                  [[1, 0, 1, 0], [0, 2, 1, 0], [0, 0, -1.5, -2.5], [0, 0, -1, 0]])
+    # Symmetric, it is gluPerspective; near and far map to -1 and +1.
+    np.testing.assert_allclose(perspective(math.pi / 2, 1.0, 1, 3), frustum(-1, 1, -1, 1, 1, 3))
+    clip = frustum(0, 2, 0, 1, 1, 5) @ np.array([[0, 0, -1, 1], [0, 0, -5, 1]]).T
+    np.testing.assert_allclose(clip[2] / clip[3], [-1, 1])
+
+
+def test_look_at_poses():
+    np.testing.assert_array_equal(look_at(np.array([0, 0, 5.0]), np.zeros(3)),
+                                  [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]])
+    # Straight down, +Y up is parallel to the view: +X (least aligned) stands in for it.
+    pose = look_at(np.array([0, 5.0, 0]), np.zeros(3))
+    np.testing.assert_array_equal(pose, [[0, 1, 0, 0], [0, 0, 1, 5], [1, 0, 0, 0], [0, 0, 0, 1]])
+    pose = pose_from_direction(np.array([1.0, 2, 3]), np.array([1.0, 0, -1]))
+    np.testing.assert_allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-15)
+    np.testing.assert_allclose(-pose[:3, 2], np.array([1, 0, -1]) / math.sqrt(2))
+    assert np.linalg.det(pose[:3, :3]) == pytest.approx(1.0)
+    with pytest.raises(RequestError):
+        look_at(np.ones(3), np.ones(3))
+
+
+def test_box_corners_and_transform():
+    c = box_corners(np.array([[0.0, 0, 0], [1, 2, 3]]))
+    assert c.shape == (8, 3)
+    np.testing.assert_array_equal(c[[0, 5, 7]], [[0, 0, 0], [1, 0, 3], [1, 2, 3]])
+    assert box_corners(np.zeros((4, 2, 3))).shape == (4, 8, 3)
+    m = np.eye(4)
+    m[:3, 3] = (1, 2, 3)
+    np.testing.assert_array_equal(transform_points(m, c)[0], [1, 2, 3])
+
+
+def test_frustum_planes_of_an_ortho_box():
+    planes = frustum_planes(ortho(-1, 1, -1, 1, 1, 3))
+    np.testing.assert_array_equal(planes, [[1, 0, 0, 1], [-1, 0, 0, 1], [0, 1, 0, 1],
+                                           [0, -1, 0, 1], [0, 0, -1, -1], [0, 0, 1, 3]])
+
+
+def test_boxes_in_frustum():
+    # The pyramid |x|, |y| <= -z, -3 <= z <= -1.
+    planes = frustum_planes(frustum(-1, 1, -1, 1, 1, 3))
+    boxes = np.array([
+        [[-0.5, -0.5, -2], [0.5, 0.5, -1.5]],  # inside
+        [[-0.5, -0.5, -5], [0.5, 0.5, -4]],  # beyond the far plane
+        [[0.5, -0.1, -1.5], [2.0, 0.1, -1.2]],  # across the right plane
+        [[3.05, -0.1, -4], [4, 0.1, -2.95]],  # beyond the far right edge, past no single plane
+    ])
+    corners = box_corners(boxes)
+    np.testing.assert_array_equal(boxes_in_frustum(corners, planes), [True, False, True, True])
+    near_far = np.array([[sx * z, sy * z, -z] for z in (1, 3) for sx in (-1, 1) for sy in (-1, 1)])
+    np.testing.assert_array_equal(boxes_in_frustum(corners, planes, near_far),
+                                  [True, False, True, False])
+
+
+def test_pyramid_planes():
+    planes = pyramid_planes(np.array([-0.5, -1.0]), np.array([0.5, 0.0]))
+    points = np.array([[0, -0.5, -1], [0.4, -0.9, -1], [0.6, -0.5, -1], [0, 0.1, -1], [0, -0.5, 1]])
+    inside = np.all(points @ planes[:, :3].T + planes[:, 3] >= 0, axis=1)
+    np.testing.assert_array_equal(inside, [True, True, False, False, False])
+
+
+def test_cube_faces_look_along_their_axes():
+    position = np.array([1.0, -2.0, 3.0])
+    views = cube_face_views(position)
+    assert len(views) == 6
+    for view, (forward, up) in zip(views, CUBE_FACES, strict=True):
+        np.testing.assert_allclose(transform_points(view, position + forward), [0, 0, -1],
+                                   atol=1e-15)
+        np.testing.assert_allclose(transform_points(view, position + np.array(up)), [0, 1, 0],
+                                   atol=1e-15)
+
+
+def test_face_meets_cone():
+    cone_cos = math.cos(math.radians(10))
+    axis = np.array([1.0, 0, 0])
+    meets = [face_meets_cone(np.array(f, float), axis, cone_cos) for f, _ in CUBE_FACES]
+    assert meets == [True, False, False, False, False, False]
+    # A 40-degree cone reaches the four neighbouring faces (90 < 40 + 54.7).
+    meets = [face_meets_cone(np.array(f, float), axis, math.cos(math.radians(40)))
+             for f, _ in CUBE_FACES]
+    assert meets == [True, False, True, True, True, True]
