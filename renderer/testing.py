@@ -1,7 +1,10 @@
-"""Scenes and measurements shared by the tests and the benchmarks.
+"""Scenes and measurements for tests and benchmarks: a public, documented module.
+
+``shadowmap.renderer.testing`` is part of the library's API so that users can check their own
+settings the way this project's tests and benchmarks do:
 
 - :func:`measure`: render a scene's visibility and compare every light with the ray-traced
-  reference (needs ``embreex``).
+  reference (needs ``embreex``, the ``reference`` extra).
 - Scene builders for stiff and extreme cases: a caster over a ground plane at any scale and
   offset, grazing light, thin sheets, contact, a room for point lights, many small objects.
 """
