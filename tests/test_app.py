@@ -78,14 +78,8 @@ class ServerProcess:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = tempfile.NamedTemporaryFile(prefix="shadowmap-app-", suffix=".log", delete=False)
-        import app
-
         full_env = dict(os.environ)
         full_env.update(env)
-        # The app package from this checkout (or wherever it is installed).
-        root = str(Path(app.__file__).resolve().parents[1])
-        paths = (root, os.environ.get("PYTHONPATH"))
-        full_env["PYTHONPATH"] = os.pathsep.join(p for p in paths if p)
         if via_run:
             cmd = [sys.executable, "-c",
                    "from shadowmap.app.main import run; "

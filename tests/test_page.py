@@ -17,7 +17,6 @@ import sys
 import tempfile
 import time
 from html.parser import HTMLParser
-from pathlib import Path
 
 import httpx
 import numpy as np
@@ -41,16 +40,12 @@ def chromium() -> str:
 @pytest.fixture(scope="module")
 def server_url():
     """The service on a free localhost port, in a subprocess."""
-    import app
-
     chromium()  # skip before starting anything when there is no browser
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = dict(os.environ)
-    root = str(Path(app.__file__).resolve().parents[1])
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)
     env["SHADOWMAP_MAX_PIXELS"] = str(1024 * 1024)
     log = tempfile.TemporaryFile()
     proc = subprocess.Popen(
