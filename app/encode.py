@@ -85,6 +85,14 @@ class RenderJSON(BaseModel):
     metrics: list[dict[str, Any]] | None = Field(
         default=None, description="error against the ray-traced reference, per light"
     )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="everything the render had to drop or approximate, one sentence each: what "
+        "loading the scene left out (unsupported extensions, materials, textures...), then the "
+        "renderer's own (a clamped setting, a light property it cannot honour, a pose made "
+        "rigid); empty when the render is what the scene and params asked for. The same list, "
+        "capped, is in the X-Render-Warnings header",
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -279,7 +287,7 @@ def multipart_body(images: list[EncodedImage]) -> tuple[bytes, str]:
 
 def json_body(images: list[EncodedImage], report: dict[str, Any],
               timings: dict[str, float]) -> bytes:
-    """The JSON response: base64 PNGs plus timings, plan, GL info and metrics."""
+    """The JSON response: base64 PNGs plus timings, plan, GL info, warnings and metrics."""
     outputs = {}
     for im in images:
         entry = {"png": base64.b64encode(im.png).decode("ascii"), "width": im.width,
@@ -287,7 +295,7 @@ def json_body(images: list[EncodedImage], report: dict[str, Any],
         entry.update(im.meta)
         outputs[im.name] = entry
     body = {"outputs": outputs, "timings": timings, "plan": report.get("plan", {}),
-            "gl": report.get("gl", {})}
+            "gl": report.get("gl", {}), "warnings": report.get("warnings", [])}
     if report.get("metrics") is not None:
         body["metrics"] = report["metrics"]
     return json.dumps(jsonable(body), allow_nan=False, separators=(",", ":")).encode()
@@ -315,6 +323,46 @@ def plan_header(plan: dict[str, Any]) -> str:
     return json.dumps(jsonable(plan), separators=(",", ":"), ensure_ascii=True, allow_nan=False)
 
 
+#: Longest ``X-Render-Warnings`` value, in characters: well inside the 8 KiB that common servers
+#: and proxies allow for all headers together, beside ``X-Render-Plan``.
+WARNINGS_HEADER_MAX = 2048
+#: Longest single warning in the header; longer ones end in "...", so that one long warning
+#: cannot crowd out the rest (the JSON body has them in full).
+WARNING_ITEM_MAX = 300
+
+
+def warnings_header(warnings: Sequence[str], limit: int = WARNINGS_HEADER_MAX) -> str:
+    """Compact ASCII JSON list of the render's warnings, for ``X-Render-Warnings``.
+
+    As many warnings as fit in ``limit`` characters, in order, then ``"... and N more"`` for the
+    rest; ``[]`` when there are none.
+
+    Parameters
+    ----------
+    warnings : list of str
+    limit : int
+        Upper bound of the value's length; at least enough for the tail alone (about 30).
+    """
+    def dumps(items: list[str]) -> str:
+        # ensure_ascii escapes everything outside ASCII and JSON escapes control characters;
+        # DEL is neither, and not allowed in a header value either.
+        text = json.dumps(items, separators=(",", ":"), ensure_ascii=True)
+        return text.replace("\x7f", "\\u007f")
+
+    items = [w if len(w) <= WARNING_ITEM_MAX else w[:WARNING_ITEM_MAX - 3] + "..."
+             for w in warnings]
+    kept: list[str] = []
+    for i, item in enumerate(items):
+        rest = len(items) - i - 1
+        tail = [f"... and {rest} more"] if rest else []
+        if len(dumps([*kept, item, *tail])) > limit:
+            break
+        kept.append(item)
+    if len(kept) < len(items):
+        kept.append(f"... and {len(items) - len(kept)} more")
+    return dumps(kept)
+
+
 # --------------------------------------------------------------------------------------------
 # Responses
 # --------------------------------------------------------------------------------------------
@@ -325,7 +373,8 @@ RENDER_STAGES = ("upload", "plan", "light", "camera", "readback", "reference")
 
 def build_response(media: str, result: RenderResult, outputs: Sequence[str],
                    before: dict[str, float], notes: dict[str, str], started: float) -> Response:
-    """The HTTP response of a finished render, with ``Server-Timing`` and ``X-Render-Plan``.
+    """The HTTP response of a finished render, with ``Server-Timing``, ``X-Render-Plan`` and
+    ``X-Render-Warnings``.
 
     Parameters
     ----------
@@ -362,6 +411,7 @@ def build_response(media: str, result: RenderResult, outputs: Sequence[str],
     headers = {
         "Server-Timing": server_timing(stages, notes),
         "X-Render-Plan": plan_header(result.plan),
+        "X-Render-Warnings": warnings_header(result.warnings),
         "Cache-Control": "no-store",
     }
     if media == MEDIA_PNG:

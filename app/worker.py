@@ -177,7 +177,7 @@ class RenderWorker:
         try:
             # Cancelling the wrapper on timeout cancels the job too if it has not started.
             return await asyncio.wait_for(asyncio.wrap_future(fut), limit)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             if fut.cancel():  # true only when it never started (or was cancelled already)
                 raise ServiceError(
                     503, "render_timeout",

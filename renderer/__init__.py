@@ -20,6 +20,7 @@ from .errors import (
     SceneError,
     ShaderError,
     ShadowMapError,
+    UnsupportedExtension,
 )
 from .limits import Limits
 from .params import RenderParams
@@ -39,5 +40,6 @@ __all__ = [
     "SceneError",
     "ShaderError",
     "ShadowMapError",
+    "UnsupportedExtension",
     "load_scene",
 ]

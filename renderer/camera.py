@@ -17,6 +17,7 @@ import numpy as np
 from .errors import RequestError
 from .params import CameraParams
 from .plan.geometry import look_at, perspective
+from .plan.instances import scene_box  # Scene.bounds, read once per scene
 from .scene import Scene
 
 
@@ -118,7 +119,7 @@ def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height
     the bounding sphere to fit the vertical and horizontal field of view.
     """
     params = params or CameraParams()
-    lo, hi = scene.bounds if scene.focus is None else scene.focus
+    lo, hi = scene_box(scene) if scene.focus is None else scene.focus
     centre = (lo + hi) / 2
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
     yfov = math.radians(params.yfov_deg)
@@ -138,7 +139,7 @@ def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height
         pose = look_at(centre + direction * dist, centre)
     # Near/far follow the scene: the tightest range containing its bounding sphere, so depth
     # precision does not depend on the scene's scale or distance from the origin.
-    lo, hi = scene.bounds
+    lo, hi = scene_box(scene)
     centre = (lo + hi) / 2
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
     dist_c = float(np.linalg.norm(centre - pose[:3, 3]))

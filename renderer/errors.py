@@ -15,6 +15,22 @@ class SceneError(ShadowMapError):
     """The scene cannot be used: corrupt or truncated glTF, unsafe URI, no geometry, ..."""
 
 
+class UnsupportedExtension(SceneError):
+    """The file requires glTF extensions (``extensionsRequired``) this loader does not implement.
+
+    Attributes
+    ----------
+    extensions : list of str
+        The required extension names that are not supported, in the file's order.
+    """
+
+    def __init__(self, extensions: list[str], message: str | None = None) -> None:
+        self.extensions = list(extensions)
+        super().__init__(message or (
+            "the file requires glTF extensions this renderer does not support: "
+            + ", ".join(self.extensions)))
+
+
 class RequestError(ShadowMapError, ValueError):
     """The request is well-formed but impossible (e.g. a spot light with no direction)."""
 

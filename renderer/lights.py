@@ -14,6 +14,7 @@ import numpy as np
 from .camera import orthonormalize_pose
 from .errors import RequestError
 from .params import LightParams
+from .plan.instances import scene_box  # Scene.bounds, read once per scene
 from .scene import Scene
 
 DEFAULT_DIRECTION = np.array([-0.5, -1.0, 0.2])
@@ -85,7 +86,7 @@ def resolve_light(p: LightParams, scene: Scene, index: int = 0) -> Light:
             direction = np.array([0.0, 0.0, -1.0])
         elif p.type == "directional" and position is not None:
             # A directional light given only a position shines from there toward the scene.
-            lo, hi = scene.bounds
+            lo, hi = scene_box(scene)
             direction = _unit((lo + hi) / 2 - position, f"{what} direction (position to centre)")
         elif p.type == "directional":
             direction = DEFAULT_DIRECTION / np.linalg.norm(DEFAULT_DIRECTION)
@@ -94,7 +95,7 @@ def resolve_light(p: LightParams, scene: Scene, index: int = 0) -> Light:
         if position is None:
             if p.type != "directional":
                 raise RequestError(f"{what}: a {p.type} light needs a position or a pose")
-            lo, hi = scene.bounds
+            lo, hi = scene_box(scene)
             position = (lo + hi) / 2
     return Light(
         type=p.type,

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .cache import BoundedCache, content_key
-from .camera import Camera, resolve_camera
+from .camera import Camera, orthonormalize_pose, resolve_camera
 from .encodings import debug_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
 from .lights import Light, resolve_lights
@@ -32,7 +32,7 @@ from .scene import Scene, load_scene
 if TYPE_CHECKING:
     from .gl.resources import GpuScene
 
-__all__ = ["LightDepth", "Limits", "RenderResult", "Renderer"]
+__all__ = ["LightDepth", "Limits", "RenderResult", "Renderer", "request_warnings"]
 
 
 @dataclass
@@ -79,6 +79,11 @@ class RenderResult:
         GL platform, renderer and version strings.
     metrics : list of dict, optional
         Error against the ray-traced reference per light, when ``params.reference``.
+    warnings : list of str
+        Everything this render had to drop or approximate, one sentence each: the scene's own
+        (what loading it left out, :attr:`Scene.warnings`), then the renderer's (a clamped
+        setting, a light property it cannot honour, a pose made rigid). Empty when the render
+        is exactly what the scene and the request asked for.
     """
 
     color: np.ndarray | None = None
@@ -89,10 +94,12 @@ class RenderResult:
     plan: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     metrics: list[dict] | None = None
+    warnings: list[str] = field(default_factory=list)
 
     def report(self) -> dict[str, Any]:
-        """JSON-ready summary: timings, plan, GL info, metrics."""
-        out: dict[str, Any] = {"timings": self.timings, "plan": self.plan, "gl": self.info}
+        """JSON-ready summary: timings, plan, GL info, warnings, metrics."""
+        out: dict[str, Any] = {"timings": self.timings, "plan": self.plan, "gl": self.info,
+                               "warnings": list(self.warnings)}
         if self.metrics is not None:
             out["metrics"] = self.metrics
         return out
@@ -239,20 +246,26 @@ class Renderer:
         timings: dict[str, float] = {}
         if not isinstance(scene, Scene):
             scene = self.load(scene, resources=resources)
+        # A copy, read before the ground is added: what loading left out belongs to the file,
+        # and a cached scene's list must not grow with every render.
+        warnings = list(scene.warnings)
         if params.ground:
             scene = scene.with_ground()
         timings["load"] = time.perf_counter() - t0
         check_scene(scene, self.limits, params)
+        warnings += request_warnings(params, scene, self.limits)
         top = max_map_size(params, self.limits)
         if params.shadows.max_map_size != top:
             params = params.model_copy(deep=True)
             params.shadows.max_map_size = top
         try:
-            return self._render(scene, params, timings, t0)
+            result = self._render(scene, params, timings, t0)
         except ShadowMapError:
             raise
         except GLError as exc:
             raise RenderError(f"OpenGL error: {exc}") from exc
+        result.warnings = list(dict.fromkeys(warnings))  # each once, in the order found
+        return result
 
     def _render(self, scene: Scene, params: RenderParams, timings: dict[str, float],
                 t0: float) -> RenderResult:
@@ -383,3 +396,126 @@ def _variant_names(variants: set[tuple]) -> list[str]:
             parts.append(name if value is True else f"{name}={value}")
         out.append(" ".join(parts))
     return sorted(set(out))
+
+
+# --------------------------------------------------------------------------------------------
+# Warnings: what the renderer itself drops or approximates
+# --------------------------------------------------------------------------------------------
+
+#: Largest difference from a rotation that a pose may show before it counts as scaled or
+#: sheared: poses written with six decimals are rigid to about 1e-6.
+RIGID_TOLERANCE = 1e-5
+#: Light fields each light type leaves unused, when the request sets them.
+_UNUSED_LIGHT_FIELDS = {
+    "directional": ("inner_cone_deg", "outer_cone_deg", "range"),
+    "point": ("direction", "target", "inner_cone_deg", "outer_cone_deg"),
+    "spot": (),
+}
+
+
+def request_warnings(params: RenderParams, scene: Scene, limits: Limits) -> list[str]:
+    """What a render of ``scene`` with ``params`` leaves out of the request or approximates.
+
+    The renderer keeps its behaviour in each case (it clamps, makes rigid, ignores); this only
+    says so. A request that cannot be rendered at all is not judged here: it fails later with
+    its own error.
+
+    Parameters
+    ----------
+    params : RenderParams
+        The request as given, before the renderer clamps anything.
+    scene : Scene
+        Its lights are read when the request lists none.
+    limits : Limits
+
+    Returns
+    -------
+    list of str
+        One sentence per finding, naming the setting or the light.
+    """
+    out: list[str] = []
+    shadows = params.shadows
+    # Only an explicit value (the default under a lower limit is the service's configuration,
+    # not a request cut short), and only for automatic sizes, the only ones it bounds.
+    if ("max_map_size" in shadows.model_fields_set and shadows.map_size == "auto"
+            and shadows.max_map_size > limits.max_map_size):
+        out.append(f"shadows.max_map_size {shadows.max_map_size} is over the limit of "
+                   f"{limits.max_map_size}: automatic map sizes stop at {limits.max_map_size}")
+    if ("pcf_kernel" in shadows.model_fields_set and shadows.pcf_kernel > 1
+            and shadows.filter == "hard"):
+        out.append(f"shadows.pcf_kernel {shadows.pcf_kernel} is not used: the filter is 'hard'")
+    out += _camera_warnings(params, scene)
+    if params.lights is not None:
+        for k, lp in enumerate(params.lights):
+            if lp.pose is not None and not _is_rigid(lp.pose, f"light {k}"):
+                out.append(f"light {k}: the pose has scale or shear: its nearest rotation is used")
+            unused = [f for f in _UNUSED_LIGHT_FIELDS[lp.type] if f in lp.model_fields_set]
+            if unused:
+                out.append(f"light {k}: a {lp.type} light has no use for "
+                           f"{', '.join(unused)}: ignored")
+    else:
+        out += _file_light_warnings(scene)
+    return out
+
+
+def _is_rigid(pose: list[list[float]], what: str) -> bool:
+    """Whether a request's pose is a rotation and translation already (true when it cannot be
+    made rigid at all: that is the render's error to raise, not a warning)."""
+    given = np.asarray(pose, np.float64)
+    try:
+        rigid = orthonormalize_pose(given, what)
+    except RequestError:
+        return True
+    scale = max(1.0, float(np.max(np.abs(given[:3, :3]))))
+    return bool(np.allclose(rigid[:3, :3], given[:3, :3], rtol=0.0, atol=RIGID_TOLERANCE * scale))
+
+
+def _camera_warnings(params: RenderParams, scene: Scene) -> list[str]:
+    cam = params.camera
+    if cam is None:
+        return []
+    if cam.pose is not None:
+        if not _is_rigid(cam.pose, "camera"):
+            return ["camera: the pose has scale or shear: its nearest rotation is used"]
+        return []
+    if cam.eye is None or "up" not in cam.model_fields_set:
+        return []
+    try:
+        pose = resolve_camera(cam, scene, params.width, params.height).pose
+    except RequestError:
+        return []
+    # The up vector was honoured when the camera's +Y is its part across the view axis; when it
+    # lies along the axis it has no such part and another one was chosen.
+    up = np.asarray(cam.up, np.float64)
+    z = pose[:3, 2]
+    across = up - np.dot(up, z) * z
+    length = float(np.linalg.norm(across))
+    if length > 1e-9 * max(float(np.linalg.norm(up)), 1e-300) and np.allclose(
+            pose[:3, 1], across / length, rtol=0.0, atol=1e-6):
+        return []
+    return [f"camera: up {cam.up} is parallel to the view direction: another up vector is used"]
+
+
+def _file_light_warnings(scene: Scene) -> list[str]:
+    """What resolving the file's ``KHR_lights_punctual`` lights changed about them."""
+    if not scene.lights:  # the default light is the renderer's own
+        return []
+    out: list[str] = []
+    for k, (sl, light) in enumerate(zip(scene.lights, resolve_lights(None, scene), strict=True)):
+        what = f"light {k} of the file"
+        if light.type != sl.type:
+            out.append(f"{what}: type {sl.type!r} is not supported: rendered as a "
+                       f"{light.type} light")
+        if not np.isclose(light.intensity, sl.intensity, rtol=1e-9, atol=0.0):
+            if light.type == "directional":
+                out.append(f"{what}: intensity {sl.intensity:g} clamped to {light.intensity:g}")
+            else:  # glTF gives them in candela, which has no fixed relation to this shading
+                out.append(f"{what}: intensity {sl.intensity:g} (candela) is not used: a file's "
+                           f"spot and point lights shine at {light.intensity:g}")
+        if light.type == "spot":
+            for name, given, used in (("outer", sl.outer_cone, light.outer_cone),
+                                      ("inner", sl.inner_cone, light.inner_cone)):
+                if not np.isclose(given, used, rtol=1e-9, atol=0.0):
+                    out.append(f"{what}: {name} cone angle {np.degrees(given):.6g} degrees "
+                               f"clamped to {np.degrees(used):.6g}")
+    return out

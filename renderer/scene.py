@@ -1,9 +1,10 @@
-"""Loading glTF scenes into the renderer's own scene description.
+"""The renderer's own scene description, and loading glTF scenes into it.
 
-trimesh parses geometry, materials and the node graph; this module reads the few things trimesh does
-not keep (``KHR_lights_punctual`` lights, every camera with its full node transform, and the
-``castShadow`` / ``receiveShadow`` extras) straight from the glTF JSON, and flattens everything into
+:func:`load_scene` reads glTF 2.0 with the project's numpy reader (:mod:`shadowmap.renderer.gltf`:
+container, accessors, nodes, skins, morph targets, materials, extensions) and flattens it into
 plain numpy arrays that the GL passes, the planner and the ray-traced reference all share.
+Everything the reader drops or approximates is listed in :attr:`Scene.warnings`.
+:func:`scene_from_meshes` builds a scene from trimesh meshes (tests, demo scenes).
 
 The loader never opens a path named inside a file and never fetches a URL: external buffers and
 images are looked up in a mapping the caller provides, and anything that is not a plain relative
@@ -12,12 +13,8 @@ name (``../``, absolute paths, ``file:``, ``http:``) is refused.
 
 from __future__ import annotations
 
-import io
-import json
-import math
 import posixpath
-import struct
-from collections.abc import Hashable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -31,8 +28,6 @@ from .limits import Limits, check_scene
 
 if TYPE_CHECKING:
     import trimesh
-
-GLB_MAGIC = b"glTF"
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,8 +65,9 @@ class Primitive:
     indices : ndarray, shape (F, 3), uint32
     material : Material
     uv : ndarray or None, shape (N, 2), float32
-        ``TEXCOORD_0`` in trimesh's (OpenGL) convention: v = 1 - glTF v, so v = 0 is the bottom
-        row of the image. Present only when the material has a texture.
+        The base-colour texture's ``TEXCOORD_n`` (after ``KHR_texture_transform``) in OpenGL's
+        convention, as trimesh gives it: v = 1 - glTF v, so v = 0 is the bottom row of the
+        image. Present only when the material has a texture.
     colors : ndarray or None, shape (N, 4), float32
         ``COLOR_0`` (linear RGBA), present only when the file has vertex colours.
     """
@@ -151,6 +147,9 @@ class Scene:
     lights : list of SceneLight
     key : str
         SHA-256 of the file and its resources, for caching.
+    warnings : list of str
+        What the loader dropped or approximated (a left-out primitive, a texture that could not
+        be decoded, an ignored optional extension, ...), each once.
     """
 
     primitives: list[Primitive]
@@ -160,6 +159,7 @@ class Scene:
     key: str = ""
     #: Bounds the automatic camera frames, when not all of :attr:`bounds` (e.g. an added ground).
     focus: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -198,7 +198,8 @@ class Scene:
                         name="ground", bounds=np.stack([pos.min(axis=0), pos.max(axis=0)]))
         return Scene(self.primitives + [ground], self.instances + [inst], self.cameras,
                      self.lights, key=self.key + ":ground" if self.key else "",
-                     focus=np.stack([lo, hi]) if self.focus is None else self.focus)
+                     focus=np.stack([lo, hi]) if self.focus is None else self.focus,
+                     warnings=list(self.warnings))
 
     def world_triangles(self, instance: Instance) -> np.ndarray:
         """Triangles of one instance in world space.
@@ -229,7 +230,11 @@ def _safe_name(uri: str) -> str:
 
 
 class MappingResolver:
-    """trimesh resolver backed by a mapping of relative name -> bytes; refuses unsafe names."""
+    """External files from a mapping of relative name -> bytes; refuses unsafe names.
+
+    The glTF reader's resolver (``get``); ``namespaced`` and ``write`` complete trimesh's
+    resolver interface.
+    """
 
     def __init__(self, resources: Mapping[str, bytes] | None) -> None:
         self._files = {_safe_name(k): v for k, v in (resources or {}).items()}
@@ -271,129 +276,7 @@ def directory_resources(folder: str | Path, max_bytes: int = 512 * 2**20) -> dic
 
 
 # --------------------------------------------------------------------------------------------
-# glTF JSON: what trimesh does not keep
-# --------------------------------------------------------------------------------------------
-
-
-def _read_header(data: bytes, file_type: str) -> dict:
-    """The glTF JSON of a .glb or .gltf file, with structural checks."""
-    if file_type == "glb":
-        if len(data) < 20 or data[:4] != GLB_MAGIC:
-            raise SceneError("not a binary glTF: the file does not start with the magic 'glTF'")
-        version, length = struct.unpack_from("<II", data, 4)
-        if version != 2:
-            raise SceneError(f"binary glTF version {version} is not supported (only 2)")
-        if length > len(data):
-            raise SceneError(f"truncated binary glTF: header says {length} bytes, got {len(data)}")
-        chunk_len, chunk_type = struct.unpack_from("<II", data, 12)
-        if chunk_type != 0x4E4F534A or 20 + chunk_len > len(data):
-            raise SceneError("corrupt binary glTF: the first chunk is not a complete JSON chunk")
-        raw = data[20 : 20 + chunk_len]
-    else:
-        raw = data
-    try:
-        header = json.loads(raw.decode("utf-8-sig"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SceneError(f"the glTF JSON cannot be parsed: {exc}") from None
-    if not isinstance(header, dict) or "asset" not in header:
-        raise SceneError("not a glTF 2.0 file: the JSON has no 'asset'")
-    version = str(header["asset"].get("version", ""))
-    if not version.startswith("2"):
-        raise SceneError(f"glTF version {version!r} is not supported (only 2.x)")
-    return header
-
-
-def _node_matrix(node: dict) -> np.ndarray:
-    if "matrix" in node:
-        return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T
-    m = np.eye(4)
-    if "scale" in node:
-        m = np.diag([*node["scale"], 1.0]) @ m
-    if "rotation" in node:
-        x, y, z, w = node["rotation"]
-        r = np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-            ]
-        )
-        rm = np.eye(4)
-        rm[:3, :3] = r
-        m = rm @ m
-    if "translation" in node:
-        t = np.eye(4)
-        t[:3, 3] = node["translation"]
-        m = t @ m
-    return m
-
-
-def _world_matrices(header: dict) -> dict[int, np.ndarray]:
-    """World matrix of every node reachable from the default scene."""
-    nodes = header.get("nodes", [])
-    scenes = header.get("scenes", [])
-    roots = scenes[header.get("scene", 0)].get("nodes", []) if scenes else range(len(nodes))
-    out: dict[int, np.ndarray] = {}
-    stack = [(int(r), np.eye(4)) for r in roots]
-    while stack:
-        idx, parent = stack.pop()
-        if idx in out or not 0 <= idx < len(nodes):
-            continue
-        out[idx] = parent @ _node_matrix(nodes[idx])
-        stack.extend((int(c), out[idx]) for c in nodes[idx].get("children", []))
-    return out
-
-
-def _orthonormal_pose(m: np.ndarray) -> np.ndarray:
-    """Drop scale from a node matrix, keeping position and orientation."""
-    pose = np.eye(4)
-    pose[:3, 3] = m[:3, 3]
-    r = m[:3, :3]
-    u, _, vt = np.linalg.svd(r)
-    pose[:3, :3] = u @ vt
-    return pose
-
-
-def _cameras_and_lights(header: dict) -> tuple[list[SceneCamera], list[SceneLight]]:
-    world = _world_matrices(header)
-    nodes = header.get("nodes", [])
-    cams = header.get("cameras", [])
-    lights = header.get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", [])
-    cameras: list[SceneCamera] = []
-    out_lights: list[SceneLight] = []
-    for idx in sorted(world):
-        node = nodes[idx]
-        pose = _orthonormal_pose(world[idx])
-        if not np.all(np.isfinite(pose)):
-            continue
-        if "camera" in node and 0 <= node["camera"] < len(cams):
-            cam = cams[node["camera"]]
-            p = cam.get("perspective")
-            if cam.get("type") == "perspective" and p and p.get("yfov", 0) > 0:
-                cameras.append(
-                    SceneCamera(pose, float(p["yfov"]), p.get("znear"), p.get("zfar"),
-                                p.get("aspectRatio"))
-                )
-        li = node.get("extensions", {}).get("KHR_lights_punctual", {}).get("light")
-        if li is not None and 0 <= li < len(lights):
-            spec = lights[li]
-            spot = spec.get("spot", {})
-            out_lights.append(
-                SceneLight(
-                    type=spec.get("type", "directional"),
-                    pose=pose,
-                    color=tuple(spec.get("color", (1.0, 1.0, 1.0))),
-                    intensity=float(spec.get("intensity", 1.0)),
-                    range=spec.get("range"),
-                    inner_cone=float(spot.get("innerConeAngle", 0.0)),
-                    outer_cone=float(spot.get("outerConeAngle", math.pi / 4)),
-                )
-            )
-    return cameras, out_lights
-
-
-# --------------------------------------------------------------------------------------------
-# Geometry and materials from trimesh
+# Scenes from trimesh meshes
 # --------------------------------------------------------------------------------------------
 
 
@@ -502,15 +385,6 @@ def world_bounds(local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return np.stack([w.min(axis=0), w.max(axis=0)])
 
 
-def _detect_type(data: bytes, file_type: str | None) -> str:
-    if file_type:
-        ft = file_type.lower().lstrip(".")
-        if ft not in ("glb", "gltf"):
-            raise SceneError(f"unsupported scene type {file_type!r}: use .glb or .gltf")
-        return ft
-    return "glb" if data[:4] == GLB_MAGIC else "gltf"
-
-
 def load_scene(
     source: str | Path | bytes,
     *,
@@ -525,13 +399,15 @@ def load_scene(
     ----------
     source : path or bytes
         A ``.glb`` or ``.gltf`` file. Only this file is read from disk; see ``resources``.
-    file_type : {"glb", "gltf"}, optional
-        Detected from the magic bytes when omitted.
+    file_type : str, optional
+        ``"glb"``, ``"gltf"`` or a suffix: only a hint for messages. Binary or JSON is decided
+        by the content (the magic ``glTF``), so a JSON glTF named ``.glb`` loads.
     resources : mapping of str to bytes, optional
         External buffers and images of a ``.gltf``, by the relative name used in the file.
     limits : Limits, optional
         Raise :class:`LimitError` when the scene breaks one (see
-        :func:`~shadowmap.renderer.limits.check_scene`).
+        :func:`~shadowmap.renderer.limits.check_scene`); ``max_triangles`` is checked first from
+        the accessors' declared counts, before any data is decoded.
     key : str, optional
         The content key of ``source`` and ``resources`` when the caller has computed it
         (:func:`~shadowmap.renderer.cache.content_key`).
@@ -539,13 +415,19 @@ def load_scene(
     Returns
     -------
     Scene
+        With :attr:`Scene.warnings` listing whatever was dropped or approximated.
 
     Raises
     ------
+    UnsupportedExtension
+        ``extensionsRequired`` names an extension the reader does not implement.
     SceneError
         Corrupt, truncated or unsupported file; unsafe or missing external URIs; no triangles.
+    LimitError
+        A limit of ``limits``.
     """
-    import trimesh
+    from .gltf.loader import load_gltf
+    from .gltf.reader import read_container
 
     if isinstance(source, (str, Path)):
         path = Path(source)
@@ -556,66 +438,19 @@ def load_scene(
         file_type = file_type or path.suffix
     else:
         data = bytes(source)
-    if not data:
-        raise SceneError("the scene file is empty")
-    ft = _detect_type(data, file_type)
-    header = _read_header(data, ft)
+    document = read_container(data, file_type)
     resolver = MappingResolver(resources)
-
     try:
-        tm = trimesh.load(
-            io.BytesIO(data),
-            file_type=ft,
-            # A duck-typed resolver (get / namespaced / write): trimesh's ResolverLike names only
-            # its own Resolver class or a Mapping, though the loaders call just those methods.
-            resolver=resolver,  # type: ignore[arg-type]
-            force="scene",
-            process=False,
-        )
-    except SceneError:
+        loaded = load_gltf(document, resolver,
+                           max_triangles=None if limits is None else limits.max_triangles)
+    except (SceneError, LimitError):
         raise
-    except Exception as exc:  # noqa: BLE001 - trimesh raises many types on corrupt input
-        raise SceneError(f"the glTF file cannot be parsed: {type(exc).__name__}: {exc}") from None
-    assert isinstance(tm, trimesh.Scene)  # force="scene"; trimesh types the result as Geometry
-
-    primitives: list[Primitive] = []
-    index_of: dict[Hashable, int] = {}
-    instances: list[Instance] = []
-    edge_meta = tm.graph.transforms.edge_data
-    parents = {e[1]: e for e in edge_meta}
-    for node in tm.graph.nodes_geometry:
-        matrix, geom_name = tm.graph[node]
-        mesh = tm.geometry.get(geom_name)
-        if mesh is None or not hasattr(mesh, "faces") or len(mesh.faces) == 0:
-            continue
-        if geom_name not in index_of:
-            index_of[geom_name] = len(primitives)
-            primitives.append(_primitive_from_trimesh(mesh, str(geom_name)))
-        matrix = np.asarray(matrix, dtype=np.float64)
-        if not np.all(np.isfinite(matrix)):
-            raise SceneError(f"node {node!r} has a non-finite transform")
-        node_meta = edge_meta.get(parents.get(node), {}).get("metadata")
-        mesh_meta = mesh.metadata.get("extras") if isinstance(mesh.metadata, dict) else None
-        mesh_meta = mesh_meta if isinstance(mesh_meta, dict) else mesh.metadata
-        cast = _flag(node_meta, "castShadow")
-        receive = _flag(node_meta, "receiveShadow")
-        cast = _flag(mesh_meta, "castShadow") if cast is None else cast
-        receive = _flag(mesh_meta, "receiveShadow") if receive is None else receive
-        prim = primitives[index_of[geom_name]]
-        instances.append(
-            Instance(
-                primitive=index_of[geom_name],
-                matrix=matrix,
-                cast_shadow=True if cast is None else cast,
-                receive_shadow=True if receive is None else receive,
-                name=str(node),
-                bounds=world_bounds(prim.local_bounds.astype(np.float64), matrix),
-            )
-        )
-    if not instances:
-        raise SceneError("the scene has no triangles to render")
-    cameras, lights = _cameras_and_lights(header)
-    scene = Scene(primitives, instances, cameras, lights, key=key or content_key(data, resources))
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+        # The reader checks what it reads; this catches a malformed document it did not
+        # anticipate, so bad input stays a SceneError (HTTP 400), never a crash.
+        raise SceneError(f"malformed glTF ({type(exc).__name__}: {exc})") from None
+    scene = Scene(loaded.primitives, loaded.instances, loaded.cameras, loaded.lights,
+                  key=key or content_key(data, resources), warnings=loaded.warnings)
     if limits is not None:
         check_scene(scene, limits)
     return scene

@@ -83,7 +83,8 @@ def transformed(scene: Scene, scale: float = 1.0,
     ]
     focus = None if scene.focus is None else scene.focus * scale + np.asarray(offset)
     return Scene(scene.primitives, instances, scene.cameras, scene.lights,
-                 key=f"{scene.key}:{scale!r}:{tuple(offset)!r}", focus=focus)
+                 key=f"{scene.key}:{scale!r}:{tuple(offset)!r}", focus=focus,
+                 warnings=list(scene.warnings))
 
 
 def _box(extents: npt.ArrayLike, centre: npt.ArrayLike, **meta: bool) -> trimesh.Trimesh:

@@ -38,11 +38,12 @@ out vec3 v_normal;
 void main() {
     vec4 world = a_model * vec4(a_position, 1.0);
     v_world = world.xyz;
-    // Cofactor matrix = inverse transpose x determinant: correct under non-uniform scale and
-    // mirroring, without a per-vertex inverse.
+    // Cofactor matrix = inverse transpose x determinant: correct under non-uniform scale
+    // without a per-vertex inverse. Its sign is the determinant's, so under a mirroring matrix
+    // (determinant < 0) it turns the normal inside out: multiply by that sign again.
     mat3 m = mat3(a_model);
     mat3 cof = mat3(cross(m[1], m[2]), cross(m[2], m[0]), cross(m[0], m[1]));
-    v_normal = cof * a_normal;
+    v_normal = cof * a_normal * (dot(m[0], cof[0]) < 0.0 ? -1.0 : 1.0);
 #if HAS_UV
     v_uv = a_uv;
 #endif

@@ -3,7 +3,9 @@
 It sits above both the library and the service: ``render`` uses :mod:`shadowmap.renderer` only,
 ``serve`` imports :mod:`shadowmap.app` when it runs (the ``server`` extra). Errors in the input
 (bad file, bad JSON, impossible values) exit with status 2 and one line on stderr; a GL failure
-exits with status 3; ``serve`` without the ``server`` extra exits with status 4.
+exits with status 3; ``serve`` without the ``server`` extra exits with status 4. What a render had
+to drop or approximate is printed to stderr as ``shadowmap: warning: ...``, one line each, and
+the command still exits with status 0.
 """
 
 from __future__ import annotations
@@ -29,7 +31,9 @@ depth]; alpha; ground; reference; optimize.
 
 Writes to OUT: color.png, light_depth_<i>.png and light_depth_<i>.npy per light,
 visibility.npy (H x W, or H x W x L for several lights), depth.npy, report.json (timings, GL
-renderer, the render plan, and with --reference the error against the ray-traced reference).
+renderer, the render plan, warnings, and with --reference the error against the ray-traced
+reference). Each warning (what the render had to drop or approximate) is also printed to stderr
+as "shadowmap: warning: ...".
 """
 
 
@@ -97,6 +101,10 @@ def _render(args: argparse.Namespace) -> int:
     report = result.report()
     report["scene"] = str(scene_path)
     (out / "report.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+    # What the render dropped or approximated: worth a line each (names from the file may hold
+    # line breaks), but not a failure.
+    for warning in result.warnings:
+        print(f"shadowmap: warning: {' '.join(warning.splitlines())}", file=sys.stderr)
     t = result.timings
     print(f"rendered {scene_path.name} in {t['total'] * 1000:.1f} ms on {result.info['renderer']} "
           f"({result.info['platform']}) -> {out}")

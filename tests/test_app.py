@@ -413,6 +413,38 @@ def test_json_outputs(client):
     assert "x-render-plan" in resp.headers and "server-timing" in resp.headers
 
 
+def test_warnings_in_the_header_of_every_format_and_in_json(client):
+    # max_map_size over this server's limit (2048) is clamped; a range means nothing to a
+    # directional light: both rendered as before, and both said.
+    params = {**SMALL, "shadows": {"max_map_size": 4096},
+              "lights": [{"type": "directional", "direction": [-0.5, -1.0, 0.2], "range": 3.0}]}
+    expected = [
+        "shadows.max_map_size 4096 is over the limit of 2048: automatic map sizes stop at 2048",
+        "light 0: a directional light has no use for range: ignored",
+    ]
+    for accept in ("image/png", "multipart/mixed", "application/json"):
+        resp = post_params(client, params, accept=accept)
+        assert resp.status_code == 200, resp.text[:500]
+        header = resp.headers["x-render-warnings"]
+        assert header.isascii() and json.loads(header) == expected, header
+        assert "x-render-plan" in resp.headers
+        if accept == "application/json":
+            assert resp.json()["warnings"] == expected
+    # Uploads too, and a render with nothing to report says so with an empty list.
+    resp = post_scene(client, "Duck.glb", (models_dir() / "Duck.glb").read_bytes(), SMALL,
+                      accept="application/json")
+    assert resp.status_code == 200
+    assert json.loads(resp.headers["x-render-warnings"]) == resp.json()["warnings"]
+    assert post_params(client, SMALL).headers["x-render-warnings"] == "[]"
+
+
+def test_openapi_documents_the_warnings(client):
+    spec = client.get("/openapi.json").json()
+    ok = spec["paths"]["/render"]["post"]["responses"]["200"]
+    assert "X-Render-Warnings" in ok["headers"]
+    assert "warnings" in spec["components"]["schemas"]["RenderJSON"]["properties"]
+
+
 def test_accept_without_color_prefers_multipart(client):
     params = {**SMALL, "outputs": ["depth"]}
     resp = post_params(client, params, accept="*/*")

@@ -38,6 +38,27 @@ def test_render_writes_every_output(models, tmp_path):
     assert "IoU" in proc.stdout
 
 
+@pytest.mark.gl
+def test_warnings_go_to_stderr_and_the_report_and_still_exit_0(models, tmp_path):
+    params = tmp_path / "p.json"
+    params.write_text(json.dumps({
+        # Over the CLI renderer's default limit of 8192, and a camera pose with scale.
+        "shadows": {"max_map_size": 16384},
+        "camera": {"pose": [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 600], [0, 0, 0, 1]]},
+    }))
+    out = tmp_path / "out"
+    proc = shadowmap("render", str(models / "Duck.glb"), "--params", str(params),
+                     "--width", "96", "--height", "64", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("shadowmap: warning: ")]
+    assert len(lines) >= 2, proc.stderr
+    assert any("shadows.max_map_size 16384" in line for line in lines)
+    assert any(line.startswith("shadowmap: warning: camera: the pose") for line in lines)
+    report = json.loads((out / "report.json").read_text())
+    assert [f"shadowmap: warning: {w}" for w in report["warnings"]] == lines
+    assert "rendered Duck.glb" in proc.stdout
+
+
 def test_help_documents_the_json(models):
     proc = shadowmap("render", "--help")
     assert proc.returncode == 0

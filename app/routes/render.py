@@ -9,7 +9,15 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from ..deps import RENDER_REQUEST_BODY, RenderInputDep, WorkerDep
-from ..encode import FORMATS, MEDIA_PNG, RenderJSON, build_response, choose_format
+from ..encode import (
+    FORMATS,
+    MEDIA_PNG,
+    WARNING_ITEM_MAX,
+    WARNINGS_HEADER_MAX,
+    RenderJSON,
+    build_response,
+    choose_format,
+)
 from ..errors import ErrorBody, ServiceError
 
 _BINARY = {"schema": {"type": "string", "format": "binary"}}
@@ -20,8 +28,9 @@ RESPONSES: dict = {
         "one PNG part per output (`color`, `light_depth_<i>`, `visibility_<i>` as 16-bit "
         "round(v*65535) with no geometry = 0, `depth` as 16-bit normalised over the image's "
         "depth range with no geometry = 65535), named in Content-Disposition. "
-        "`application/json`: the same PNGs base64-encoded plus timings, plan, GL info and "
-        "metrics. Every response has `Server-Timing` and `X-Render-Plan` (compact JSON).",
+        "`application/json`: the same PNGs base64-encoded plus timings, plan, GL info, "
+        "warnings and metrics. Every response has `Server-Timing`, `X-Render-Plan` and "
+        "`X-Render-Warnings` (compact JSON).",
         "content": {
             "image/png": _BINARY,
             "multipart/mixed": _BINARY,
@@ -32,6 +41,16 @@ RESPONSES: dict = {
                               "readback, encode, total (ms)", "schema": {"type": "string"}},
             "X-Render-Plan": {"description": "what ran and what was left out (JSON)",
                               "schema": {"type": "string"}},
+            "X-Render-Warnings": {
+                "description": "what the render had to drop or approximate: a compact JSON list "
+                "of sentences, ASCII only (other characters as JSON \\u escapes), `[]` when "
+                f"none. At most {WARNINGS_HEADER_MAX} characters: warnings that do not fit are "
+                f"counted in a last item `\"... and N more\"`, and one over {WARNING_ITEM_MAX} "
+                "characters is cut to end in `...`; the JSON response's `warnings` field has "
+                "them all in full",
+                "schema": {"type": "string"},
+                "example": '["light 0 of the file: outer cone angle 90 degrees clamped to 89.5"]',
+            },
         },
     },
     400: {"model": ErrorBody, "description": "invalid or unsafe scene file, bad zip"},

@@ -27,6 +27,11 @@ from ..scene import Scene
 class GpuPrimitive:
     """One uploaded primitive with all its instances in one instance buffer.
 
+    Instances whose model matrix mirrors (negative determinant, e.g. a node scaled by
+    (-1, 1, 1)) sit at the end of the buffer, from slot :attr:`mirrored_from`: a mirror reverses
+    the winding of every triangle, so their front faces are clockwise on screen and
+    :meth:`draw` switches ``glFrontFace`` for them. Both kinds share one vertex buffer.
+
     Attributes
     ----------
     mesh : pyrender.Primitive
@@ -36,6 +41,10 @@ class GpuPrimitive:
     loc_uv, loc_color, loc_model : int
         Attribute locations of pyrender's interleaved layout (positions 0, normals 1, then
         texture coordinates and colours when present, then the 4 columns of the model matrix).
+    count : int
+        Indices per instance.
+    mirrored_from : int
+        First slot of the mirrored instances; ``len(instances)`` when there are none.
     """
 
     mesh: pyrender.Primitive
@@ -45,25 +54,52 @@ class GpuPrimitive:
     loc_color: int
     loc_model: int
     count: int
+    mirrored_from: int
+
+    @property
+    def mirrored(self) -> int:
+        """Number of mirrored instances (the last ones in the buffer)."""
+        return len(self.instances) - self.mirrored_from
 
     def draw(self, slots: list[int] | None = None) -> None:
-        """Draw all instances, or only the given slots (positions in :attr:`instances`)."""
+        """Draw all instances, or only the given slots (positions in :attr:`instances`).
+
+        Mirrored instances are drawn with clockwise front faces, so that back-face culling, where
+        the caller enables it, removes the same faces as for their unmirrored counterparts.
+        """
         self.mesh._bind()
-        if slots is None:
+        if slots is None and not self.mirrored:
             GL.glDrawElementsInstanced(
                 GL.GL_TRIANGLES, self.count, GL.GL_UNSIGNED_INT, None, len(self.instances)
             )
         else:
-            for start, n in _runs(slots):
+            runs = [(0, len(self.instances))] if slots is None else _runs(slots)
+            for start, n, mirrored in _split_runs(runs, self.mirrored_from):
+                if mirrored:
+                    GL.glFrontFace(GL.GL_CW)
                 GL.glDrawElementsInstancedBaseInstance(
                     GL.GL_TRIANGLES, self.count, GL.GL_UNSIGNED_INT, None, n, start
                 )
+                if mirrored:
+                    GL.glFrontFace(GL.GL_CCW)  # GL's default, which every other draw assumes
         self.mesh._unbind()
 
     def release(self) -> None:
         self.mesh.delete()
         if self.texture is not None and self.texture._in_context():
             self.texture.delete()
+
+
+def _split_runs(runs: list[tuple[int, int]], boundary: int) -> list[tuple[int, int, bool]]:
+    """Runs of slots cut at ``boundary``: (start, length, slots from ``boundary`` on)."""
+    out: list[tuple[int, int, bool]] = []
+    for start, n in runs:
+        end = start + n
+        if start < boundary < end:
+            out += [(start, boundary - start, False), (boundary, end - boundary, True)]
+        else:
+            out.append((start, n, start >= boundary))
+    return out
 
 
 def _runs(slots: list[int]) -> list[tuple[int, int]]:
@@ -108,6 +144,13 @@ class GpuScene:
         by_prim: dict[int, list[int]] = {}
         for idx, inst in enumerate(scene.instances):
             by_prim.setdefault(inst.primitive, []).append(idx)
+        # Mirrored instances after the others (a stable partition: without any, the buffer is
+        # in scene order as before), so that each kind is one run of slots with one winding.
+        dets = np.linalg.det(np.stack([inst.matrix[:3, :3] for inst in scene.instances]))
+        mirrored = {int(i) for i in np.flatnonzero(dets < 0)}
+        if mirrored:
+            by_prim = {p: [i for i in ids if i not in mirrored] + [i for i in ids if i in mirrored]
+                       for p, ids in by_prim.items()}
         textures: dict[int, pyrender.Texture] = {}
         try:
             for pidx, inst_ids in by_prim.items():
@@ -147,6 +190,7 @@ class GpuScene:
                     loc_color=2 + has_uv,
                     loc_model=2 + has_uv + has_color,
                     count=int(prim.indices.size),
+                    mirrored_from=sum(1 for i in inst_ids if i not in mirrored),
                 )
                 for slot, i in enumerate(inst_ids):
                     gs.slot_of[i] = (len(gs.primitives), slot)

@@ -1,7 +1,9 @@
 """The per-request arrays every light fit reads: instance boxes, flags, planes, the camera's view.
 
 Built once per request and read-only afterwards (its arrays are locked against writes), so a fit
-cannot change what the next light sees.
+cannot change what the next light sees. What depends only on the scene (boxes, flags, planes, and
+the boxes relative to the upload's origin) comes from :func:`.instances.scene_arrays`, read once
+per scene; only the camera's view test is computed per request, over all instances at once.
 """
 
 from __future__ import annotations
@@ -12,8 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .culling import boxes_in_view, instance_planes
-from .geometry import box_corners
+from .culling import boxes_in_view
+from .instances import Planes, scene_arrays
 
 if TYPE_CHECKING:  # the camera imports this package: types only, no import cycle
     from ..camera import Camera
@@ -50,10 +52,14 @@ class PlanContext:
     bounds : ndarray, shape (N, 2, 3)
         Instance boxes (min, max corner).
     corners : ndarray, shape (N, 8, 3)
+    centres : ndarray, shape (N, 3)
+        Box centres.
     cast, receive : ndarray, shape (N,), bool
         The instances' cast and receive flags.
-    planes : list of (ndarray, ndarray) or None
-        Per instance, (unit normal, point) when it is flat.
+    planes : Planes
+        The flat instances' unit normals and points (origin-relative).
+    extent : float
+        The largest side of any instance box.
     in_view : ndarray, shape (N,), bool
         Boxes the camera may see.
     cam_pos : ndarray, shape (3,)
@@ -72,9 +78,11 @@ class PlanContext:
     origin: np.ndarray
     bounds: np.ndarray
     corners: np.ndarray
+    centres: np.ndarray
     cast: np.ndarray
     receive: np.ndarray
-    planes: list
+    planes: Planes
+    extent: float
     in_view: np.ndarray
     cam_pos: np.ndarray
     frustum_corners: np.ndarray
@@ -87,19 +95,21 @@ class PlanContext:
               params: RenderParams) -> PlanContext:
         """The context of one request (reads its inputs, changes none of them)."""
         origin = np.array(origin, np.float64)
-        bounds = np.stack([inst.bounds for inst in scene.instances]) - origin  # (N, 2, 3)
-        corners = box_corners(bounds)  # (N, 8, 3)
+        arrays = scene_arrays(scene)  # shared by every request on this scene: read-only
+        rel = arrays.relative(origin)
         shadow = params.shadows
         return cls(
             camera=camera,
             params=params,
             origin=_frozen(origin),
-            bounds=_frozen(bounds),
-            corners=_frozen(corners),
-            cast=_frozen(np.array([inst.cast_shadow for inst in scene.instances])),
-            receive=_frozen(np.array([inst.receive_shadow for inst in scene.instances])),
-            planes=instance_planes(scene, origin),
-            in_view=_frozen(boxes_in_view(corners, camera, origin)),
+            bounds=rel.bounds,
+            corners=rel.corners,
+            centres=rel.centres,
+            cast=arrays.cast,
+            receive=arrays.receive,
+            planes=rel.planes,
+            extent=rel.extent,
+            in_view=_frozen(boxes_in_view(rel.bounds, camera, origin)),
             cam_pos=_frozen(camera.pose[:3, 3] - origin),
             frustum_corners=_frozen(camera.frustum_corners() - origin),
             pixel_per_distance=2 * math.tan(camera.yfov / 2) / camera.height * AUTO_TEXEL_PIXELS,
@@ -149,6 +159,5 @@ class PlanContext:
 
     def receiver_distance(self, receivers: np.ndarray) -> float:
         """A representative camera distance of the receivers: the nearest box centre."""
-        c = self.bounds[receivers].mean(axis=1)
-        d = np.linalg.norm(c - self.cam_pos, axis=1)
+        d = np.linalg.norm(self.centres[receivers] - self.cam_pos, axis=1)
         return float(max(np.min(d), self.camera.znear))

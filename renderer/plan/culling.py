@@ -1,39 +1,33 @@
 """What the camera sees and which casters can matter to a light.
 
-View culling of instance boxes, the planes of flat instances, and the caster selection shared by
-every light fit: casters inside the light's region over the visible receivers, not beyond them,
-and not a plane that faces every receiver from its lit side. Pure functions; positions are
-relative to the scene's origin.
+View culling of instance boxes, and the caster selection shared by every light fit: casters inside
+the light's region over the visible receivers, not beyond them, and not a plane that faces every
+receiver from its lit side. Pure functions over arrays of all instances (the planes of flat
+instances come from :mod:`.instances`); positions are relative to the scene's origin.
 """
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .geometry import boxes_in_frustum, frustum_planes
+from .geometry import aabbs_in_frustum, frustum_planes, thin_matmul
 
 if TYPE_CHECKING:  # the camera and lights import this package: types only, no import cycle
     from ..camera import Camera
     from ..lights import Light
-    from ..scene import Primitive, Scene
     from .context import PlanContext
 
-# (unit normal, point) of a flat primitive, or None; keyed by the primitive so that repeated
-# renders of a cached scene do not redo the SVD, without writing into the scene's objects.
-_PLANES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
-
-def boxes_in_view(corners: np.ndarray, camera: Camera, origin: np.ndarray) -> np.ndarray:
+def boxes_in_view(bounds: np.ndarray, camera: Camera, origin: np.ndarray) -> np.ndarray:
     """Which boxes the camera may see (conservative).
 
     Parameters
     ----------
-    corners : ndarray, shape (N, 8, 3)
-        Instance box corners, relative to ``origin``.
+    bounds : ndarray, shape (N, 2, 3)
+        Instance boxes (min, max corner), relative to ``origin``.
     camera : Camera
     origin : ndarray, shape (3,)
 
@@ -44,56 +38,37 @@ def boxes_in_view(corners: np.ndarray, camera: Camera, origin: np.ndarray) -> np
     pose = camera.pose.copy()
     pose[:3, 3] -= origin
     view_proj = camera.projection @ np.linalg.inv(pose)
-    return boxes_in_frustum(corners, frustum_planes(view_proj), camera.frustum_corners() - origin)
+    return aabbs_in_frustum(bounds, frustum_planes(view_proj), camera.frustum_corners() - origin)
 
 
-def primitive_plane(prim: Primitive) -> tuple[np.ndarray, np.ndarray] | None:
-    """The plane of a flat primitive in its local frame.
+# Directions whose most extreme receivers are tried first as witnesses that a plane has a
+# receiver behind it (the 26 neighbours of a grid cell): one such receiver settles the test, and
+# a large receiver (a ground, a wall) is extreme along some of them.
+_WITNESS_DIRECTIONS = np.array(
+    [(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if x or y or z],
+    np.float64,
+)
+_WITNESS_DIRECTIONS.flags.writeable = False
+# Directions per block of the exact test: the (receivers, block) array stays near 4M floats.
+_BLOCK_ELEMENTS = 1 << 22
+
+
+def _support_min(lo: np.ndarray, hi: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """The least ``corner . d`` over the corners of each box, for each direction.
+
+    Parameters
+    ----------
+    lo, hi : ndarray, shape (R, 3)
+        Box min and max corners.
+    dirs : ndarray, shape (D, 3)
 
     Returns
     -------
-    (normal, point) : ndarray, shape (3,) each, or None
-        Unit normal and the vertices' centre when every vertex lies on one plane; None otherwise
-        (fewer than three vertices, a single point, or a curved or folded mesh).
+    ndarray, shape (R, D)
+        Per axis the lesser of ``lo * d`` and ``hi * d``: the corner nearest along ``-d``.
     """
-    try:
-        return _PLANES[prim]
-    except KeyError:
-        pass
-    p = prim.positions.astype(np.float64)
-    centre = p.mean(axis=0)
-    extent = float(np.max(p.max(axis=0) - p.min(axis=0)))
-    result = None
-    if len(p) >= 3 and extent > 0:
-        _, sv, vt = np.linalg.svd(p - centre, full_matrices=False)
-        if sv[-1] <= 1e-7 * max(sv[0], 1e-300) * np.sqrt(len(p)) or np.max(
-            np.abs((p - centre) @ vt[-1])
-        ) <= 1e-7 * extent:
-            result = (vt[-1], centre)
-    _PLANES[prim] = result
-    return result
-
-
-def instance_planes(scene: Scene, origin: np.ndarray) -> list[tuple[np.ndarray, np.ndarray] | None]:
-    """Per instance: (unit normal, point) in origin-relative world space if flat, else None.
-
-    Normals are carried by the inverse transpose, so a non-uniformly scaled plane keeps a true
-    normal; a singular node matrix leaves the instance without a plane.
-    """
-    out: list[tuple[np.ndarray, np.ndarray] | None] = []
-    for inst in scene.instances:
-        plane = primitive_plane(scene.primitives[inst.primitive])
-        if plane is None:
-            out.append(None)
-            continue
-        n, c = plane
-        m = inst.matrix
-        n_w = np.linalg.solve(m[:3, :3].T, n) if abs(np.linalg.det(m[:3, :3])) > 0 else None
-        if n_w is None or not np.all(np.isfinite(n_w)) or np.linalg.norm(n_w) == 0:
-            out.append(None)
-            continue
-        out.append((n_w / np.linalg.norm(n_w), m[:3, :3] @ c + m[:3, 3] - origin))
-    return out
+    return thin_matmul(np.concatenate([lo, hi], axis=1),
+                       np.concatenate([np.maximum(dirs, 0), np.minimum(dirs, 0)], axis=1).T)
 
 
 def shadowless_planes(ctx: PlanContext, light: Light, position: np.ndarray,
@@ -104,6 +79,9 @@ def shadowless_planes(ctx: PlanContext, light: Light, position: np.ndarray,
     on its far side from the light. When every visible receiver but itself is on the light's
     side (or it is edge-on to a directional light), it casts onto nothing the camera sees and is
     left out of the fit and, with ``optimize``, of the light pass.
+
+    All flat casters are tested at once (:func:`_on_light_side`); no step visits one instance at a
+    time.
 
     Parameters
     ----------
@@ -118,29 +96,96 @@ def shadowless_planes(ctx: PlanContext, light: Light, position: np.ndarray,
     -------
     ndarray, shape (N,), bool
     """
-    out = np.zeros(len(ctx.planes), bool)
-    tol = 1e-9 * max(float(np.max(ctx.bounds[:, 1] - ctx.bounds[:, 0])), 1e-300)
-    for i, plane in enumerate(ctx.planes):
-        if plane is None or not ctx.cast[i]:
-            continue
-        n, p0 = plane
-        if light.type == "directional":
-            facing = -float(np.dot(n, light.direction))
-            if abs(facing) <= 1e-12:
-                out[i] = True  # edge-on: it projects to a line
-                continue
-        else:
-            facing = float(np.dot(n, position - p0))
-            if abs(facing) <= tol:
-                continue  # the light sits in the plane
-        side = np.sign(facing)
-        others = receivers[receivers != i]
-        if len(others) == 0:
-            out[i] = True
-            continue
-        d = (ctx.corners[others] - p0) @ (n * side)  # (R, 8): >= 0 on the light's side
-        out[i] = bool(np.all(d >= -tol))
+    out = np.zeros(len(ctx.cast), bool)
+    idx = np.flatnonzero(ctx.planes.flat & ctx.cast)
+    if len(idx) == 0:
+        return out
+    normal, p0 = ctx.planes.normal[idx], ctx.planes.point[idx]
+    tol = 1e-9 * max(ctx.extent, 1e-300)
+    # Row sums of products: the same rounding as one 3-vector dot product per plane.
+    if light.type == "directional":
+        facing = -(normal * light.direction).sum(axis=1)
+        edge_on = np.abs(facing) <= 1e-12
+        out[idx[edge_on]] = True  # edge-on: it projects to a line
+        live = ~edge_on
+    else:
+        facing = (normal * (position - p0)).sum(axis=1)
+        live = np.abs(facing) > tol  # otherwise the light sits in the plane
+    idx, normal, p0, facing = idx[live], normal[live], p0[live], facing[live]
+    if len(idx):
+        # Normals turned toward the light: a receiver corner c is on the light's side of plane
+        # k when (c - p0[k]) . toward[k] >= -tol.
+        toward = normal * np.sign(facing)[:, None]
+        out[idx] = _on_light_side(ctx.bounds, idx, toward, p0, receivers, tol)
     return out
+
+
+def _on_light_side(bounds: np.ndarray, idx: np.ndarray, toward: np.ndarray, p0: np.ndarray,
+                   receivers: np.ndarray, tol: float) -> np.ndarray:
+    """Whether every receiver box other than the plane's own lies on the light's side of it.
+
+    A box's nearest corner along ``-toward`` decides for the whole box (:func:`_support_min`).
+    Three steps, each exact: planes with the receivers' common bounding box on their light side
+    hold; planes with one of a few extreme receivers (:data:`_WITNESS_DIRECTIONS`) behind them
+    fail; the rest are tested against every receiver, once per distinct normal, in blocks. The
+    work is O(K + D R) for K planes with D distinct normals among the undecided and R receivers.
+
+    Parameters
+    ----------
+    bounds : ndarray, shape (N, 2, 3)
+        Every instance's box.
+    idx : ndarray, shape (K,), int
+        The planes' instance indices (a plane's own box is not tested against it).
+    toward : ndarray, shape (K, 3)
+        Unit normals turned toward the light.
+    p0 : ndarray, shape (K, 3)
+        A point of each plane.
+    receivers : ndarray, shape (R,), int
+    tol : float
+
+    Returns
+    -------
+    ndarray, shape (K,), bool
+    """
+    k = len(idx)
+    if len(receivers) == 0:
+        return np.ones(k, bool)
+    offset = (p0 * toward).sum(axis=1)  # (K,): p0 . toward
+    lo, hi = bounds[receivers, 0], bounds[receivers, 1]  # (R, 3)
+    # 1. Nothing is behind a plane whose light side holds the box around every receiver.
+    common = _support_min(lo.min(axis=0)[None], hi.max(axis=0)[None], toward)[0]
+    result = common - offset >= -tol
+    undecided = ~result
+    # 2. A receiver (not the plane itself) behind the plane decides against it.
+    if undecided.any():
+        s = _support_min(lo, hi, _WITNESS_DIRECTIONS)  # (R, 26)
+        two = np.argpartition(s, 1, axis=0)[:2] if len(receivers) > 1 else np.zeros((1, 26), int)
+        w = np.unique(two)  # positions in ``receivers``
+        u = np.flatnonzero(undecided)
+        sw = _support_min(lo[w], hi[w], toward[u])  # (W, U)
+        sw[receivers[w][:, None] == idx[u][None, :]] = np.inf
+        undecided[u[np.any(sw - offset[u] < -tol, axis=0)]] = False  # result stays False
+    # 3. The rest against every receiver: per distinct normal, the nearest receiver box and
+    # the nearest other than the first (a plane whose own box is the nearest takes the second).
+    u = np.flatnonzero(undecided)
+    if len(u):
+        dirs, group = np.unique(toward[u], axis=0, return_inverse=True)
+        group = group.reshape(-1)
+        nearest = np.empty(len(dirs))
+        second = np.empty(len(dirs))
+        owner = np.empty(len(dirs), np.intp)
+        step = max(1, _BLOCK_ELEMENTS // len(receivers))
+        for b in range(0, len(dirs), step):  # blocks of directions, not instances
+            s = _support_min(lo, hi, dirs[b:b + step])  # (R, B)
+            cols = np.arange(s.shape[1])
+            first = np.argmin(s, axis=0)
+            nearest[b:b + step] = s[first, cols]
+            owner[b:b + step] = receivers[first]
+            s[first, cols] = np.inf
+            second[b:b + step] = s.min(axis=0)
+        others = np.where(owner[group] == idx[u], second[group], nearest[group])
+        result[u] = others - offset[u] >= -tol
+    return result
 
 
 @dataclass(frozen=True)
@@ -196,7 +241,7 @@ def select_casters(ctx: PlanContext, light: Light, position: np.ndarray, receive
     else:
         drawn = ctx.cast
     return Selection(
-        casters=[int(i) for i in np.flatnonzero(drawn)],
+        casters=np.flatnonzero(drawn).tolist(),  # Python ints, without a loop here
         fit=fit,
         skipped={k: v for k, v in skipped.items() if v},
     )

@@ -24,6 +24,8 @@ from .geometry import (
     CUBE_FACE_PLANES,
     CUBE_FACES,
     boxes_in_frustum,
+    corner_max,
+    corner_min,
     cube_face_views,
     face_meets_cone,
     frustum,
@@ -145,8 +147,8 @@ def reach_directional(ctx: PlanContext, s: Subject) -> DirectionalReach:
     rec = s.receivers
     view = np.linalg.inv(pose_from_direction(np.zeros(3), s.light.direction))
     lc = transform_points(view, ctx.corners)  # (N, 8, 3) light view
-    lo = lc.min(axis=1)
-    hi = lc.max(axis=1)
+    lo = corner_min(lc)
+    hi = corner_max(lc)
     # Lateral region: the visible receivers, clipped to what the camera frustum can show.
     r_lo, r_hi = lo[rec].min(axis=0), hi[rec].max(axis=0)
     f = transform_points(view, ctx.frustum_corners)

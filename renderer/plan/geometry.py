@@ -182,11 +182,37 @@ def box_corners(bounds: np.ndarray) -> np.ndarray:
     idx = np.array([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)])
     if b.ndim == 2:
         return b[idx, [0, 1, 2]]
-    return b[:, idx, [0, 1, 2]]
+    # Fancy indexing lays the result out axis by axis; in row order every later product and
+    # reduction over the corners runs several times faster.
+    return np.ascontiguousarray(b[:, idx, [0, 1, 2]])
+
+
+def corner_min(a: np.ndarray) -> np.ndarray:
+    """The least value over axis 1 (a box's corners), e.g. (N, 8, 3) -> (N, 3).
+
+    The same values as ``a.min(axis=1)`` (a minimum rounds nothing), from one elementwise
+    ``minimum`` per corner: numpy reduces a middle axis several times slower.
+    """
+    out = a[:, 0].copy()
+    for i in range(1, a.shape[1]):
+        np.minimum(out, a[:, i], out=out)
+    return out
+
+
+def corner_max(a: np.ndarray) -> np.ndarray:
+    """The greatest value over axis 1 (a box's corners); see :func:`corner_min`."""
+    out = a[:, 0].copy()
+    for i in range(1, a.shape[1]):
+        np.maximum(out, a[:, i], out=out)
+    return out
 
 
 def transform_points(m: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Apply an affine matrix (4, 4) to points (..., 3); the last row of ``m`` is ignored."""
+    if p.ndim > 2 and p.flags.c_contiguous:
+        # One (M, 3) x (3, 3) product instead of one per leading index (e.g. per box of N x 8
+        # corners): the same products, half the time at 50,000 boxes.
+        return (p.reshape(-1, 3) @ m[:3, :3].T).reshape(p.shape) + m[:3, 3]
     return p @ m[:3, :3].T + m[:3, 3]
 
 
@@ -230,9 +256,87 @@ def boxes_in_frustum(corners: np.ndarray, planes: np.ndarray,
     ndarray, shape (N,), bool
     """
     d = corners @ planes[:, :3].T + planes[:, 3]  # (N, 8, P)
-    inside = ~np.any(np.all(d < 0, axis=1), axis=1)
+    # Outside a plane when every corner is: when the corner nearest the inside still is.
+    inside = ~np.any(corner_max(d) < 0, axis=1)
     if frustum_corners is not None:
-        lo, hi = corners.min(axis=1), corners.max(axis=1)  # (N, 3)
+        lo, hi = corner_min(corners), corner_max(corners)  # (N, 3)
+        f_lo, f_hi = frustum_corners.min(axis=0), frustum_corners.max(axis=0)
+        inside &= np.all((hi >= f_lo) & (lo <= f_hi), axis=1)
+    return inside
+
+
+# Rows per block of :func:`thin_matmul`: a block's product is too small for BLAS to spread over
+# threads.
+_THIN_ROWS = 4096
+
+
+def thin_matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` for many rows and few columns, in blocks of rows.
+
+    A product such as (50000, 6) x (6, 6) is split across BLAS threads, whose start-up and
+    synchronisation cost more than the product itself, ten times more on a busy 2-core machine;
+    blocks of :data:`_THIN_ROWS` rows each run on the calling thread.
+
+    Parameters
+    ----------
+    a : ndarray, shape (M, K)
+    b : ndarray, shape (K, P)
+
+    Returns
+    -------
+    ndarray, shape (M, P)
+    """
+    out = np.empty((a.shape[0], b.shape[1]), np.result_type(a, b))
+    for start in range(0, a.shape[0], _THIN_ROWS):  # blocks of rows, not one per row
+        np.matmul(a[start:start + _THIN_ROWS], b, out=out[start:start + _THIN_ROWS])
+    return out
+
+
+# Bound on the rounding of the filtered box test below, in units of the terms' magnitude: a few
+# ulps per product and sum (the corner test rounds too), with a wide margin.
+_AABB_FILTER_ULPS = 64 * float(np.finfo(np.float64).eps)
+
+
+def aabbs_in_frustum(bounds: np.ndarray, planes: np.ndarray,
+                     frustum_corners: np.ndarray | None = None) -> np.ndarray:
+    """:func:`boxes_in_frustum` for axis-aligned boxes: the same result, far fewer operations.
+
+    A box is outside a plane when its corner farthest along the plane's normal is. That corner's
+    distance comes from the box's centre and half-size, O(N P) work instead of the O(8 N P) of
+    testing every corner. Where it lies within a rounding bound of zero (a box touching the
+    plane, to ~1e-14 of the scene's size) the box is tested corner by corner as in
+    :func:`boxes_in_frustum`, so that the answer is the corner test's in every case.
+
+    Parameters
+    ----------
+    bounds : ndarray, shape (N, 2, 3)
+        Min and max corner of each box, in the planes' space.
+    planes : ndarray, shape (P, 4)
+    frustum_corners : ndarray, shape (8, 3), optional
+
+    Returns
+    -------
+    ndarray, shape (N,), bool
+        Equal to ``boxes_in_frustum(box_corners(bounds), planes, frustum_corners)``.
+    """
+    lo, hi = bounds[:, 0], bounds[:, 1]  # (N, 3)
+    n, w = planes[:, :3], planes[:, 3]  # (P, 3), (P,)
+    size = np.abs(n)
+    # The farthest corner's distance, (N, P): centre . n + half . |n| + w.
+    far = thin_matmul(np.concatenate([(lo + hi) / 2, (hi - lo) / 2], axis=1),
+                      np.concatenate([n, size], axis=1).T)
+    far += w
+    # One rounding bound per plane, from the largest coordinate of any box.
+    scale = float(np.max(np.abs(bounds), initial=0.0)) * size.sum(axis=1) + np.abs(w)
+    near_zero = np.abs(far) <= _AABB_FILTER_ULPS * scale
+    outside = np.any((far < 0) & ~near_zero, axis=1)
+    unsure = np.flatnonzero(np.any(near_zero, axis=1) & ~outside)
+    if len(unsure):  # the corner test itself, on the few boxes that touch a plane
+        d = box_corners(bounds[unsure]) @ planes[:, :3].T + planes[:, 3]  # (U, 8, P)
+        outside[unsure] = np.any(corner_max(d) < 0, axis=1)
+    inside = ~outside
+    if frustum_corners is not None:
+        # The corners' bounding box is the box itself: its min and max corner.
         f_lo, f_hi = frustum_corners.min(axis=0), frustum_corners.max(axis=0)
         inside &= np.all((hi >= f_lo) & (lo <= f_hi), axis=1)
     return inside

@@ -172,7 +172,7 @@ def make_plan(
     """
     ctx = PlanContext.build(scene, camera, origin, params)
     n = len(scene.instances)
-    visible = [int(i) for i in np.flatnonzero(ctx.in_view)] if params.optimize else list(range(n))
+    visible = np.flatnonzero(ctx.in_view).tolist() if params.optimize else list(range(n))
     return RenderPlan(
         camera=camera,
         origin=origin,

@@ -1,0 +1,635 @@
+"""A glTF document to the renderer's scene parts: primitives, instances, cameras, lights, and
+warnings for everything dropped or approximated.
+
+Order of work, cheapest first, so a scene refused by a check decodes nothing: the container and
+``asset``; ``extensionsRequired``; the node graph (JSON only); the triangle-count pre-check
+(accessor counts times instance counts); then the data each drawn mesh needs, each mesh decoded
+once per distinct (skin, morph weights) use, and instances built per mesh in vectorised steps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import LimitError, SceneError, UnsupportedExtension
+from ..scene import Instance, Material, Primitive, SceneCamera, SceneLight, _vertex_normals
+from . import morph, skin
+from .accessors import UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, check_type
+from .extensions import check_extensions, gpu_instancing, lights_punctual, mesh_quantization
+from .extensions import texture_transform as tt
+from .materials import Materials, MaterialUse
+from .nodes import INVALID, NodeGraph, build_graph
+from .primitives import MODE_NAMES, RESTART, TRIANGLES, triangle_count, triangulate
+from .reader import Buffers, Document, Resolver, extension, get_index, get_list
+
+DRACO = "KHR_draco_mesh_compression"
+INSTANCING = gpu_instancing.EXTENSION
+_INDEX_COMPONENTS = frozenset({(UNSIGNED_BYTE, False), (UNSIGNED_SHORT, False),
+                               (UNSIGNED_INT, False)})
+
+#: (mesh, skin or -1, morph weights, node for skinned uses or -1): one decoded mesh.
+_UseKey = tuple[int, int, tuple[float, ...], int]
+
+
+@dataclass
+class LoadedGltf:
+    """What :func:`load_gltf` returns: the parts of a :class:`~shadowmap.renderer.scene.Scene`.
+
+    Attributes
+    ----------
+    primitives, instances, cameras, lights
+        As in ``Scene``.
+    warnings : list of str
+        Everything dropped or approximated, each once, in the order met.
+    """
+
+    primitives: list[Primitive]
+    instances: list[Instance]
+    cameras: list[SceneCamera] = field(default_factory=list)
+    lights: list[SceneLight] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def load_gltf(document: Document, resolver: Resolver,
+              max_triangles: int | None = None) -> LoadedGltf:
+    """Decode a parsed glTF container into scene parts.
+
+    Parameters
+    ----------
+    document : Document
+        From :func:`~shadowmap.renderer.gltf.reader.read_container`.
+    resolver : Resolver
+        External buffers and images by relative name.
+    max_triangles : int, optional
+        Refuse, before decoding any data, a scene whose accessors declare more triangles
+        (counting every instance).
+
+    Raises
+    ------
+    UnsupportedExtension
+        A required extension is not implemented (or its decoder is not installed).
+    LimitError
+        ``max_triangles``.
+    SceneError
+        Malformed, inconsistent or unsafe content; nothing drawable.
+    """
+    loader = _Loader(document, resolver)
+    if max_triangles is not None:
+        total = loader.declared_triangles()
+        if total > max_triangles:
+            raise LimitError("max_triangles", f"the scene has {total} triangles, over the "
+                             f"limit of {max_triangles}")
+    return loader.load()
+
+
+def _orthonormal_pose(m: np.ndarray) -> np.ndarray:
+    """Drop scale (and shear) from a node matrix, keeping position and orientation."""
+    pose = np.eye(4)
+    pose[:3, 3] = m[:3, 3]
+    u, _, vt = np.linalg.svd(m[:3, :3])
+    pose[:3, :3] = u @ vt
+    return pose
+
+
+def _flag(extras: Any, key: str) -> int:
+    if isinstance(extras, dict) and isinstance(extras.get(key), bool):
+        return int(extras[key])
+    return -1
+
+
+def _as_float(values: np.ndarray) -> np.ndarray:
+    return np.asarray(values, np.float64)
+
+
+@dataclass
+class _Record:
+    """Instances of one primitive: the nodes drawing it, their matrices, and for
+    EXT_mesh_gpu_instancing the instance number of each (None otherwise)."""
+
+    nodes: np.ndarray  # (K,) int64
+    primitive: int
+    matrices: np.ndarray  # (K, 4, 4) float64
+    sub: np.ndarray | None  # (K,) int64
+
+
+class _Loader:
+    def __init__(self, document: Document, resolver: Resolver) -> None:
+        self.doc = document.json
+        self.warnings: list[str] = check_extensions(self.doc)
+        required = self.doc.get("extensionsRequired", [])
+        self.required = ({r for r in required if isinstance(r, str)}
+                         if isinstance(required, list) else set())
+        self.graph: NodeGraph = build_graph(self.doc)
+        self.meshes = get_list(self.doc, "meshes")
+        self.skins = get_list(self.doc, "skins")
+        self.buffers = Buffers(document, resolver)
+        self.accessors = Accessors(self.buffers)
+        self.materials = Materials(self.buffers, resolver, self.warnings)
+        self.primitives: list[Primitive] = []
+        self._uses: dict[_UseKey, list[int | None]] = {}
+        self._left_out: list[str] = []
+
+    # -- the cheap pre-check ---------------------------------------------------------------
+
+    def _mesh_spec(self, m: int) -> dict[str, Any]:
+        spec = self.meshes[m]
+        if not isinstance(spec, dict) or not isinstance(spec.get("primitives"), list):
+            raise SceneError(f"malformed glTF: mesh {m} has no 'primitives' array")
+        return spec
+
+    def _declared_mesh_triangles(self, m: int) -> int:
+        total = 0
+        for prim in self._mesh_spec(m)["primitives"]:
+            if not isinstance(prim, dict):
+                continue
+            mode = prim.get("mode", TRIANGLES)
+            attrs = prim.get("attributes", {})
+            idx = prim.get("indices")
+            acc = idx if idx is not None else (attrs.get("POSITION")
+                                               if isinstance(attrs, dict) else None)
+            if isinstance(acc, int) and not isinstance(acc, bool) and 0 <= acc < len(
+                    self.accessors) and isinstance(mode, int):
+                total += triangle_count(mode, self.accessors.count(acc))
+        return total
+
+    def declared_triangles(self) -> int:
+        """Triangles the drawn nodes declare (accessor counts x instances), no data read."""
+        g = self.graph
+        nodes = np.flatnonzero(g.in_scene & (g.mesh >= 0))
+        per_node = np.ones(len(nodes), np.int64)
+        for k in np.flatnonzero(g.special[nodes] & (g.skin[nodes] < 0)).tolist():
+            i = int(nodes[k])
+            ext = extension(g.nodes[i], INSTANCING)
+            if ext is not None:
+                count = gpu_instancing.instance_count(ext, self.accessors, f"node {i}")
+                per_node[k] = count if count else 1
+        uses = np.bincount(g.mesh[nodes], weights=per_node, minlength=len(self.meshes))
+        return sum(int(uses[m]) * self._declared_mesh_triangles(int(m))
+                   for m in np.flatnonzero(uses))
+
+    # -- loading ---------------------------------------------------------------------------
+
+    def load(self) -> LoadedGltf:
+        instances = self._instances()
+        if not instances:
+            detail = "; ".join(self._left_out[:5]) or "no mesh node in the scene"
+            more = f" (and {len(self._left_out) - 5} more)" if len(self._left_out) > 5 else ""
+            raise SceneError(f"the scene has no triangles to render (left out: {detail}{more})")
+        cameras, lights = self._cameras_and_lights()
+        warnings = list(dict.fromkeys(self.warnings + self.buffers.warnings))
+        return LoadedGltf(self.primitives, instances, cameras, lights, warnings)
+
+    def _instances(self) -> list[Instance]:
+        g = self.graph
+        nodes = np.flatnonzero(g.in_scene & (g.mesh >= 0))
+        mesh_cast = np.full(len(self.meshes), -1, np.int8)
+        mesh_receive = np.full(len(self.meshes), -1, np.int8)
+        for m in np.unique(g.mesh[nodes]):
+            extras = self._mesh_spec(int(m)).get("extras")
+            mesh_cast[m] = _flag(extras, "castShadow")
+            mesh_receive[m] = _flag(extras, "receiveShadow")
+        # Records of (node, primitive, matrices (K, 4, 4)), grouped so that the many nodes that
+        # draw one mesh plainly share one decode and one vectorised bounds computation.
+        records: list[_Record] = []
+        plain = nodes[(g.skin[nodes] < 0) & ~g.special[nodes]]
+        plain = plain[np.argsort(g.mesh[plain], kind="stable")]
+        meshes, starts = np.unique(g.mesh[plain], return_index=True)
+        groups = np.split(plain, starts[1:]) if len(plain) else []
+        for m, group in zip(meshes.tolist(), groups, strict=True):
+            prims = self._mesh_use((m, -1, self._weights(m, None), -1))
+            self._check_finite(group)
+            for p in prims:
+                if p is not None:
+                    records.append(_Record(group, p, g.world[group], None))
+        for i in nodes[(g.skin[nodes] >= 0) | g.special[nodes]]:
+            records.extend(self._special_node(int(i)))
+        if not records:
+            return []
+        cast = np.where(g.cast >= 0, g.cast, mesh_cast[np.maximum(g.mesh, 0)]) != 0
+        receive = np.where(g.receive >= 0, g.receive, mesh_receive[np.maximum(g.mesh, 0)]) != 0
+        out: list[tuple[int, int, int, Instance]] = []
+        for rec in records:
+            p = rec.primitive
+            bounds = _bounds(self.primitives[p].local_bounds.astype(np.float64), rec.matrices)
+            sub = rec.sub.tolist() if rec.sub is not None else [0] * len(rec.nodes)
+            for k, (i, j) in enumerate(zip(rec.nodes.tolist(), sub, strict=True)):
+                name = g.names[i] if rec.sub is None else f"{g.names[i]}#{j}"
+                out.append((i, j, p, Instance(p, rec.matrices[k], bool(cast[i]),
+                                              bool(receive[i]), name, bounds[k])))
+        out.sort(key=lambda r: (r[0], r[1], r[2]))  # file order: node, instance, primitive
+        return [r[3] for r in out]
+
+    def _check_finite(self, nodes: np.ndarray) -> None:
+        bad = ~np.all(np.isfinite(self.graph.world[nodes]), axis=(1, 2))
+        if bad.any():
+            i = int(nodes[bad][0])
+            raise SceneError(f"node {self.graph.names[i]!r} has a non-finite transform")
+
+    def _weights(self, m: int, node: dict[str, Any] | None) -> tuple[float, ...]:
+        w = morph.default_weights(self._mesh_spec(m), node)
+        return w if any(w) else ()
+
+    def _special_node(self, i: int) -> list[_Record]:
+        """Records for a skinned, morph-weighted or instanced node."""
+        g = self.graph
+        node = g.nodes[i]
+        m = int(g.mesh[i])
+        s = int(g.skin[i])
+        weights = self._weights(m, node)
+        one = np.array([i], np.int64)
+        ext = extension(node, INSTANCING)
+        if s >= 0:
+            if ext is not None:
+                self.warnings.append(f"node {g.names[i]!r} is skinned: its {INSTANCING} "
+                                     "instances are drawn once")
+            self._check_finite(one)
+            prims = self._mesh_use((m, s, weights, i))
+            # Skinned vertices are in world space already.
+            return [_Record(one, p, np.eye(4)[None], None) for p in prims if p is not None]
+        self._check_finite(one)
+        prims = self._mesh_use((m, -1, weights, -1))
+        local = None
+        if ext is not None:
+            local = gpu_instancing.instance_matrices(ext, self.accessors, f"node {i}")
+        if local is None:
+            return [_Record(one, p, g.world[one], None) for p in prims if p is not None]
+        mats = g.world[i] @ local
+        bad = ~np.all(np.isfinite(mats), axis=(1, 2))
+        if bad.any():
+            raise SceneError(f"node {g.names[i]!r}: {INSTANCING} instance "
+                             f"{int(np.flatnonzero(bad)[0])} has a non-finite transform")
+        k = len(mats)
+        return [_Record(np.full(k, i, np.int64), p, mats, np.arange(k))
+                for p in prims if p is not None]
+
+    # -- meshes ----------------------------------------------------------------------------
+
+    def _mesh_use(self, key: _UseKey) -> list[int | None]:
+        """Primitive indices (None where dropped) of one use of a mesh, decoded once."""
+        cached = self._uses.get(key)
+        if cached is not None:
+            return cached
+        m, s, weights, node = key
+        spec = self._mesh_spec(m)
+        name = spec.get("name") if isinstance(spec.get("name"), str) else ""
+        out: list[int | None] = []
+        for p, prim in enumerate(spec["primitives"]):
+            what = f"mesh {m} ({name!r}) primitive {p}" if name else f"mesh {m} primitive {p}"
+            built = self._primitive(m, p, prim, s, weights, node, what)
+            if built is None:
+                out.append(None)
+                continue
+            built.name = (name or f"mesh_{m}") + (f"_{p}" if p else "")
+            out.append(len(self.primitives))
+            self.primitives.append(built)
+        self._uses[key] = out
+        return out
+
+    def _drop(self, what: str, reason: str) -> None:
+        message = f"{what}: {reason}"
+        self.warnings.append(message)
+        self._left_out.append(message)
+
+    def _primitive(self, m: int, p: int, prim: Any, s: int, weights: tuple[float, ...],
+                   node: int, what: str) -> Primitive | None:
+        if not isinstance(prim, dict):
+            raise SceneError(f"malformed glTF: {what} is not an object")
+        mode = prim.get("mode", TRIANGLES)
+        if isinstance(mode, bool) or not isinstance(mode, int) or mode not in (4, 5, 6):
+            if isinstance(mode, int) and mode in MODE_NAMES:
+                self._drop(what, f"mode {mode} ({MODE_NAMES[mode]}) is left out: only "
+                           "triangles are drawn")
+            else:
+                self._drop(what, f"unknown mode {mode!r}: left out")
+            return None
+        attrs = prim.get("attributes")
+        if not isinstance(attrs, dict):
+            raise SceneError(f"{what}: 'attributes' is not an object")
+        draco_ext = extension(prim, DRACO)
+        decoded = self._draco(draco_ext, attrs, what) if draco_ext is not None else {}
+
+        # POSITION: refused when of the wrong type (it is the one attribute that must be right).
+        if "POSITION" not in attrs and "POSITION" not in decoded:
+            self._drop(what, "no POSITION attribute: left out")
+            return None
+        if "POSITION" in decoded:
+            positions = _as_float(decoded["POSITION"])
+        else:
+            pos_index = self._accessor_index(attrs, "POSITION", what)
+            reason = check_type(self.accessors.info(pos_index), {"VEC3"},
+                                mesh_quantization.POSITION, f"{what} POSITION")
+            if reason:
+                raise SceneError(reason)
+            positions = self.accessors.read_float(pos_index)
+        n = len(positions)
+
+        # Indices, checked, then one triangle list.
+        if decoded:
+            indices = np.asarray(decoded["indices"], np.int64).reshape(-1)
+            restart = None
+            mode = TRIANGLES  # Draco streams decode to triangle lists
+        elif "indices" in prim:
+            idx = get_index(prim, "indices", len(self.accessors), what, required=True)
+            assert idx is not None
+            info = self.accessors.info(idx)
+            reason = check_type(info, {"SCALAR"}, _INDEX_COMPONENTS, f"{what} indices")
+            if reason:
+                self._drop(what, f"{reason}: left out")
+                return None
+            indices = self.accessors.read(idx).astype(np.int64)
+            restart = RESTART[info.component_type]
+        else:
+            indices, restart = np.arange(n, dtype=np.int64), None
+        if len(indices):
+            if restart is not None and int(indices.max()) == restart:
+                self._drop(what, f"its indices hold the primitive-restart value {restart}: "
+                           "left out")
+                return None
+            if int(indices.max()) >= n:
+                self._drop(what, f"index {int(indices.max())} is out of range for {n} vertices:"
+                           " left out")
+                return None
+        if mode == TRIANGLES and len(indices) % 3:
+            self.warnings.append(f"{what}: {len(indices)} indices is not a multiple of 3; the "
+                                 "last partial triangle is left out")
+        faces = triangulate(indices, mode)
+        if len(faces) == 0:
+            self._drop(what, "no triangles: left out")
+            return None
+
+        # Keep only the vertices the triangles use (a view may serve many primitives).
+        used = np.unique(faces)
+        if len(used) < n:
+            remap = np.full(n, -1, np.int64)
+            remap[used] = np.arange(len(used))
+            faces = remap[faces]
+            sel: np.ndarray | None = used
+        else:
+            sel = None
+
+        def take(a: np.ndarray) -> np.ndarray:
+            return a if sel is None else a[sel]
+
+        normals = self._attribute(attrs, decoded, "NORMAL", {"VEC3"}, mesh_quantization.NORMAL,
+                                  n, what)
+        if weights:
+            positions = morph.apply_targets(positions, prim, "POSITION", weights,
+                                            self.accessors, what, self.warnings)
+            if normals is not None:
+                normals = morph.apply_targets(normals, prim, "NORMAL", weights, self.accessors,
+                                              what, self.warnings)
+        positions = take(positions)
+        normals = None if normals is None else take(normals)
+        if s >= 0:
+            positions, normals = self._skin(s, node, attrs, decoded, positions, normals, n, take,
+                                            what)
+        if not np.all(np.isfinite(positions)):
+            raise SceneError(f"mesh {m} ({what}) has NaN or infinite vertex positions")
+
+        normals = self._normals(positions, faces, normals)
+        use = self.materials.get(get_index(prim, "material", len(self.materials.specs), what))
+        material, uv = self._uv(use, attrs, decoded, n, take, what)
+        colors = self._colors(attrs, decoded, n, take, what)
+        return Primitive(
+            positions=positions.astype(np.float32),
+            normals=normals,
+            indices=faces.astype(np.uint32),
+            material=material,
+            uv=uv,
+            colors=colors,
+        )
+
+    def _accessor_index(self, attrs: dict[str, Any], semantic: str, what: str) -> int:
+        idx = get_index(attrs, semantic, len(self.accessors), f"{what} attribute", required=True)
+        assert idx is not None
+        return idx
+
+    def _attribute(self, attrs: dict[str, Any], decoded: dict[str, np.ndarray], semantic: str,
+                   types: set[str], components: frozenset[tuple[int, bool]], n: int,
+                   what: str) -> np.ndarray | None:
+        """An optional vertex attribute as float64 (all ``n`` vertices), or None with a
+        warning when it cannot be used."""
+        if semantic in decoded:
+            return _as_float(decoded[semantic])
+        if semantic not in attrs:
+            return None
+        idx = self._accessor_index(attrs, semantic, what)
+        info = self.accessors.info(idx)
+        reason = check_type(info, types, components, f"{what} {semantic}")
+        if reason:
+            self.warnings.append(f"{reason}: the attribute is ignored")
+            return None
+        if info.count != n:
+            self.warnings.append(f"{what} {semantic} has {info.count} elements for {n} "
+                                 "vertices: the attribute is ignored")
+            return None
+        return self.accessors.read_float(idx)
+
+    def _normals(self, positions: np.ndarray, faces: np.ndarray,
+                 normals: np.ndarray | None) -> np.ndarray:
+        """Unit normals: the file's (renormalized; quantized ones are not unit), computed
+        area-weighted ones where the file has none or a vertex's is zero or not finite."""
+        computed = None
+        if normals is not None:
+            length = np.linalg.norm(normals, axis=1, keepdims=True)
+            ok = np.isfinite(length[:, 0]) & (length[:, 0] > 1e-12)
+            out = np.where(ok[:, None], normals / np.where(ok[:, None], length, 1.0), 0.0)
+            if not ok.all():
+                computed = _vertex_normals(positions, faces)
+                out[~ok] = computed[~ok]
+            return out.astype(np.float32)
+        return _vertex_normals(positions, faces)
+
+    def _skin(self, s: int, node: int, attrs: dict[str, Any], decoded: dict[str, np.ndarray],
+              positions: np.ndarray, normals: np.ndarray | None, n: int, take: Any,
+              what: str) -> tuple[np.ndarray, np.ndarray | None]:
+        mats = skin.joint_matrices(self.doc, s, self.graph, self.accessors)
+        joints: list[np.ndarray] = []
+        weights: list[np.ndarray] = []
+        k = 0
+        while f"JOINTS_{k}" in attrs or f"JOINTS_{k}" in decoded:
+            j = self._attribute(attrs, decoded, f"JOINTS_{k}", {"VEC4"},
+                                mesh_quantization.JOINTS, n, what)
+            w = self._attribute(attrs, decoded, f"WEIGHTS_{k}", {"VEC4"},
+                                mesh_quantization.WEIGHTS, n, what)
+            if j is None or w is None:
+                break
+            joints.append(take(j).astype(np.int64))
+            weights.append(take(w))
+            k += 1
+        if not joints:
+            self.warnings.append(f"{what} is skinned (skin {s}) but has no usable JOINTS_0/"
+                                 "WEIGHTS_0: drawn with its node's transform")
+            joints = [np.zeros((len(positions), 4), np.int64)]
+            weights = [np.zeros((len(positions), 4))]
+        result = skin.apply_skin(positions, normals, joints, weights, mats,
+                                 self.graph.world[node])
+        if result.unweighted:
+            self.warnings.append(f"{what}: {result.unweighted} vertices have zero skin weights: "
+                                 "drawn with their node's transform")
+        if result.bad_joints:
+            self.warnings.append(f"{what}: {result.bad_joints} skin influences name joints "
+                                 f"skin {s} does not have: they are left out")
+        return result.positions, result.normals
+
+    def _uv(self, use: MaterialUse, attrs: dict[str, Any], decoded: dict[str, np.ndarray],
+            n: int, take: Any, what: str) -> tuple[Material, np.ndarray | None]:
+        """The material and, when it is textured, the UVs in the renderer's convention."""
+        if use.material.texture is None:
+            return use.material, None
+        semantic = f"TEXCOORD_{use.tex_coord}"
+        raw = self._attribute(attrs, decoded, semantic, {"VEC2"}, mesh_quantization.TEXCOORD,
+                              n, what)
+        if raw is None:
+            self.warnings.append(f"{what}: its {use.name} has a base colour texture but the "
+                                 f"primitive has no usable {semantic}: drawn without the "
+                                 "texture")
+            return use.untextured, None
+        uv = take(raw)
+        if use.uv_transform is not None:
+            uv = tt.apply(uv, use.uv_transform)
+        uv = np.where(np.isfinite(uv), uv, 0.0)
+        if use.wrap is not None and (uv.min(initial=0.0) < 0.0 or uv.max(initial=1.0) > 1.0):
+            self.warnings.append(f"{what}: the texture of {use.name} wraps with {use.wrap}; "
+                                 "drawn with REPEAT")
+        # Primitive.uv is in OpenGL's convention (v = 1 - glTF v): the renderer and the
+        # reference sample the image, stored top row first, at row (1 - v) * height.
+        out = np.empty_like(uv, dtype=np.float32)
+        out[:, 0] = uv[:, 0]
+        out[:, 1] = 1.0 - uv[:, 1]
+        return use.material, out
+
+    def _colors(self, attrs: dict[str, Any], decoded: dict[str, np.ndarray], n: int, take: Any,
+                what: str) -> np.ndarray | None:
+        raw = self._attribute(attrs, decoded, "COLOR_0", {"VEC3", "VEC4"},
+                              mesh_quantization.COLOR, n, what)
+        if raw is None:
+            return None
+        c = take(raw)
+        if c.shape[1] == 3:
+            c = np.concatenate([c, np.ones((len(c), 1))], axis=1)
+        c = np.where(np.isfinite(c), c, 1.0)
+        if np.allclose(c, 1.0):
+            return None  # all-white vertex colours change nothing: leave the path out
+        return c.astype(np.float32)
+
+    # -- Draco -----------------------------------------------------------------------------
+
+    def _draco(self, ext: dict[str, Any], attrs: dict[str, Any],
+               what: str) -> dict[str, np.ndarray]:
+        """The decoded arrays of a Draco primitive (empty: use the accessors)."""
+        view = get_index(ext, "bufferView", len(self.buffers.views), f"{what} {DRACO}",
+                         required=True)
+        assert view is not None
+        mapping = ext.get("attributes", {})
+        if not isinstance(mapping, dict) or not all(
+                isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool)
+                for k, v in mapping.items()):
+            raise SceneError(f"{what}: {DRACO} 'attributes' must map semantics to integer ids")
+        try:
+            from .extensions.draco import decode_primitive
+        except ImportError as exc:
+            plain = all(isinstance(attrs.get(sem), int) and 0 <= attrs[sem] < len(self.accessors)
+                        and isinstance(self.accessors.specs[attrs[sem]], dict)
+                        and "bufferView" in self.accessors.specs[attrs[sem]] for sem in mapping)
+            if plain and DRACO not in self.required:
+                self.warnings.append(f"{what}: no Draco decoder ({exc}); its uncompressed "
+                                     "fallback accessors are used")
+                return {}
+            raise UnsupportedExtension(
+                [DRACO], f"{what} is Draco-compressed and the Draco decoder is not available "
+                f"({exc})") from None
+        data = self.buffers.view(view)
+        try:
+            out = decode_primitive(data, dict(mapping))
+        except SceneError as exc:
+            raise SceneError(f"{what}: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - a decoder fed untrusted bytes may raise anything
+            raise SceneError(f"{what}: the Draco data cannot be decoded: "
+                             f"{type(exc).__name__}: {exc}") from None
+        if "indices" not in out or "POSITION" not in out:
+            raise SceneError(f"{what}: the Draco stream has no indices or no POSITION")
+        n = len(out["POSITION"])
+        for key, arr in out.items():
+            if key != "indices" and (arr.ndim != 2 or len(arr) != n):
+                raise SceneError(f"{what}: Draco attribute {key} has shape {arr.shape} for {n} "
+                                 "points")
+        if out["POSITION"].shape[1] != 3:
+            raise SceneError(f"{what}: Draco POSITION is not 3-component")
+        return {k: v for k, v in out.items() if k == "indices" or k in mapping}
+
+    # -- cameras and lights ----------------------------------------------------------------
+
+    def _cameras_and_lights(self) -> tuple[list[SceneCamera], list[SceneLight]]:
+        g = self.graph
+        cams = get_list(self.doc, "cameras")
+        lights = lights_punctual.document_lights(self.doc)
+        cameras: list[SceneCamera] = []
+        out_lights: list[SceneLight] = []
+        candidates = np.flatnonzero(g.in_scene & ((g.camera != -1) | g.special))
+        for i in candidates.tolist():
+            node = g.nodes[i]
+            has_light = extension(node, lights_punctual.EXTENSION) is not None
+            if g.camera[i] == INVALID:
+                self.warnings.append(f"node {g.names[i]!r}: camera {node.get('camera')!r} "
+                                     "does not exist: left out")
+            if g.camera[i] < 0 and not has_light:
+                continue
+            pose = _orthonormal_pose(g.world[i]) if np.all(np.isfinite(g.world[i])) else None
+            if pose is None or not np.all(np.isfinite(pose)):
+                self.warnings.append(f"node {g.names[i]!r} has a non-finite transform: its "
+                                     "camera or light is left out")
+                continue
+            if g.camera[i] >= 0:
+                cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]))
+                if cam is not None:
+                    cameras.append(cam)
+            if has_light:
+                light = lights_punctual.node_light(node, lights, pose, self.warnings,
+                                                   f"node {g.names[i]!r}")
+                if light is not None:
+                    out_lights.append(light)
+        return cameras, out_lights
+
+    def _camera(self, cam: Any, pose: np.ndarray, index: int) -> SceneCamera | None:
+        if not isinstance(cam, dict):
+            return None
+        if cam.get("type") == "orthographic":
+            self.warnings.append(f"camera {index} is orthographic: not supported, left out")
+            return None
+        p = cam.get("perspective")
+        if cam.get("type") != "perspective" or not isinstance(p, dict):
+            return None
+
+        def num(key: str) -> float | None:
+            v = p.get(key)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                return None
+            return float(v)
+
+        yfov = num("yfov")
+        if yfov is None or yfov <= 0:
+            self.warnings.append(f"camera {index} has no valid yfov: left out")
+            return None
+        return SceneCamera(pose, yfov, num("znear"), num("zfar"), num("aspectRatio"))
+
+
+def _bounds(local: np.ndarray, mats: np.ndarray) -> np.ndarray:
+    """World bounds of a local box under many matrices at once.
+
+    Parameters
+    ----------
+    local : ndarray, shape (2, 3)
+    mats : ndarray, shape (K, 4, 4)
+
+    Returns
+    -------
+    ndarray, shape (K, 2, 3)
+    """
+    corners = np.array(np.meshgrid(*local.T, indexing="ij")).reshape(3, -1).T  # (8, 3)
+    w = np.einsum("kij,cj->kci", mats[:, :3, :3], corners) + mats[:, None, :3, 3]
+    return np.stack([w.min(axis=1), w.max(axis=1)], axis=1)

@@ -1,0 +1,272 @@
+"""Materials: the base colour (factor and texture), alpha mode and cutoff, double-sidedness.
+
+What the renderer draws from a glTF material is its base colour: ``pbrMetallicRoughness``'s
+``baseColorFactor`` and ``baseColorTexture`` (with its ``texCoord`` set and
+``KHR_texture_transform``), or, for a material without ``pbrMetallicRoughness``, the diffuse
+colour of ``KHR_materials_pbrSpecularGlossiness``. Textures are decoded once per image with PIL
+(PNG, JPEG, WebP) under a pixel-count limit; a texture that cannot be used (undecodable, too
+large, an unsafe or missing URI) is dropped with a warning naming the image and the material,
+and the render then uses the base colour factor. Samplers are not read: textures are sampled
+with ``REPEAT`` wrapping (the loader warns when a primitive's UVs leave [0, 1] under another
+wrap mode).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import SceneError
+from ..scene import Material
+from .extensions import specular_glossiness, texture_transform
+from .reader import Buffers, Resolver, extension, get_list, load_uri
+
+#: Largest texture decoded (pixels): 64 Mpixel, like PIL's ``Image.MAX_IMAGE_PIXELS`` guard.
+MAX_TEXTURE_PIXELS = 64 * 2**20
+#: Image formats decoded: glTF's PNG and JPEG, and WebP (EXT_texture_webp's format).
+IMAGE_FORMATS = ("PNG", "JPEG", "WEBP")
+REPEAT = 10497
+WRAP_NAMES = {33071: "CLAMP_TO_EDGE", 33648: "MIRRORED_REPEAT", REPEAT: "REPEAT"}
+ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
+
+
+@dataclass(frozen=True, eq=False)
+class MaterialUse:
+    """A material as primitives use it.
+
+    Attributes
+    ----------
+    material : Material
+        With its texture when it has one that decoded.
+    untextured : Material
+        The same without the texture, for a primitive that lacks the texture's UV set.
+    tex_coord : int
+        The ``TEXCOORD_n`` set the base-colour texture reads (after a ``KHR_texture_transform``
+        override).
+    uv_transform : ndarray or None, shape (3, 3)
+        ``KHR_texture_transform`` of the base-colour texture, on glTF UVs.
+    wrap : str or None
+        The sampler's wrap mode when it is not REPEAT (drawn with REPEAT).
+    name : str
+        How warnings name the material.
+    """
+
+    material: Material
+    untextured: Material
+    tex_coord: int = 0
+    uv_transform: np.ndarray | None = None
+    wrap: str | None = None
+    name: str = "the default material"
+
+
+def _label(kind: str, index: int, spec: Any) -> str:
+    name = spec.get("name") if isinstance(spec, dict) else None
+    return f"{kind} {index} ({name!r})" if isinstance(name, str) and name else f"{kind} {index}"
+
+
+def decode_image(data: bytes, max_pixels: int | None = None) -> np.ndarray:
+    """Decode a PNG, JPEG or WebP image to RGBA.
+
+    The size is checked from the header, before any pixel is decoded.
+
+    Parameters
+    ----------
+    data : bytes
+    max_pixels : int, optional
+        Default :data:`MAX_TEXTURE_PIXELS`.
+
+    Returns
+    -------
+    ndarray, shape (H, W, 4), uint8
+        Rows top to bottom as in the file.
+
+    Raises
+    ------
+    ValueError
+        Too many pixels.
+    Exception
+        Whatever PIL raises on data it cannot decode.
+    """
+    from PIL import Image
+
+    max_pixels = MAX_TEXTURE_PIXELS if max_pixels is None else max_pixels
+    with Image.open(io.BytesIO(data), formats=IMAGE_FORMATS) as im:
+        w, h = im.size
+        if w * h > max_pixels:
+            raise ValueError(f"{w}x{h} pixels is over the limit of {max_pixels}")
+        if w * h == 0:
+            raise ValueError("the image has no pixels")
+        rgba = im.convert("RGBA")
+    return np.asarray(rgba, dtype=np.uint8)
+
+
+class Materials:
+    """The document's materials, each built once, with their textures decoded once per image.
+
+    Parameters
+    ----------
+    buffers : Buffers
+    resolver : Resolver
+        External images by relative name.
+    warnings : list of str
+        Where messages about dropped or approximated parts are appended.
+    """
+
+    def __init__(self, buffers: Buffers, resolver: Resolver, warnings: list[str]) -> None:
+        self.doc = buffers.doc
+        self.buffers = buffers
+        self.resolver = resolver
+        self.warnings = warnings
+        self.specs = get_list(self.doc, "materials")
+        self.textures = get_list(self.doc, "textures")
+        self.images = get_list(self.doc, "images")
+        self.samplers = get_list(self.doc, "samplers")
+        self._uses: dict[int | None, MaterialUse] = {}
+        self._images: dict[int, np.ndarray | str] = {}
+
+    def get(self, index: int | None) -> MaterialUse:
+        """The material ``index`` (None: glTF's default material)."""
+        use = self._uses.get(index)
+        if use is None:
+            use = self._uses[index] = self._build(index)
+        return use
+
+    # -- building --------------------------------------------------------------------------
+
+    def _build(self, index: int | None) -> MaterialUse:
+        if index is None:
+            default = Material(np.ones(4, np.float32))
+            return MaterialUse(default, default)
+        spec = self.specs[index]
+        if not isinstance(spec, dict):
+            raise SceneError(f"malformed glTF: material {index} is not an object")
+        label = _label("material", index, spec)
+        factor_json: Any = None
+        tex_info: Any = None
+        pbr = spec.get("pbrMetallicRoughness")
+        if isinstance(pbr, dict):
+            factor_json, tex_info = pbr.get("baseColorFactor"), pbr.get("baseColorTexture")
+        elif (sg := specular_glossiness.base_colour(spec)) is not None:
+            factor_json, tex_info = sg
+        factor = self._factor(factor_json, label)
+        alpha_mode = spec.get("alphaMode", "OPAQUE")
+        if not isinstance(alpha_mode, str) or alpha_mode not in ALPHA_MODES:
+            self.warnings.append(f"{label}: unknown alphaMode {alpha_mode!r}, drawn OPAQUE")
+            alpha_mode = "OPAQUE"
+        cutoff = self._cutoff(spec, label, alpha_mode)
+        double_sided = spec.get("doubleSided", False) is True
+        untextured = Material(factor, None, alpha_mode, cutoff, double_sided)
+        texture, tex_coord, transform, wrap = self._texture(tex_info, label)
+        material = (untextured if texture is None
+                    else dataclasses.replace(untextured, texture=texture))
+        return MaterialUse(material, untextured, tex_coord, transform, wrap, label)
+
+    def _factor(self, value: Any, label: str) -> np.ndarray:
+        if value is None:
+            return np.ones(4, np.float32)
+        if (isinstance(value, list) and len(value) == 4
+                and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+                and all(math.isfinite(v) for v in value)):
+            return np.asarray(value, np.float32)
+        self.warnings.append(f"{label}: base colour factor {value!r} is not 4 finite numbers; "
+                             "white is used")
+        return np.ones(4, np.float32)
+
+    def _cutoff(self, spec: dict[str, Any], label: str, alpha_mode: str) -> float:
+        if "alphaCutoff" not in spec:
+            return 0.5  # glTF's default, only when the file gives none (0 is a valid cutoff)
+        value = spec["alphaCutoff"]
+        if (isinstance(value, bool) or not isinstance(value, int | float)
+                or not math.isfinite(value) or value < 0):
+            self.warnings.append(f"{label}: alphaCutoff {value!r} is not a number >= 0; 0.5 "
+                                 "is used")
+            return 0.5
+        cutoff = float(value)
+        if alpha_mode == "MASK" and cutoff > 1.0:
+            self.warnings.append(f"{label} is fully cut out: alphaMode MASK with alphaCutoff "
+                                 f"{cutoff} > 1 keeps no pixel (it is drawn nowhere and casts "
+                                 "no shadow)")
+        return cutoff
+
+    def _texture(self, info: Any, label: str
+                 ) -> tuple[np.ndarray | None, int, np.ndarray | None, str | None]:
+        """(texture, texCoord set, uv transform, non-REPEAT wrap) of a textureInfo."""
+        if info is None:
+            return None, 0, None, None
+        if not isinstance(info, dict):
+            self.warnings.append(f"{label}: base colour texture is not an object: dropped")
+            return None, 0, None, None
+        tex_coord = info.get("texCoord", 0)
+        if isinstance(tex_coord, bool) or not isinstance(tex_coord, int) or tex_coord < 0:
+            self.warnings.append(f"{label}: texCoord {tex_coord!r} is invalid; 0 is used")
+            tex_coord = 0
+        transform = None
+        tt = extension(info, texture_transform.EXTENSION)
+        if tt is not None:
+            transform = texture_transform.uv_matrix(tt, label)
+            tex_coord = texture_transform.tex_coord(tt, tex_coord, label)
+        tex = info.get("index")
+        if isinstance(tex, bool) or not isinstance(tex, int) or not 0 <= tex < len(self.textures):
+            self.warnings.append(f"{label}: base colour texture {tex!r} does not exist: dropped, "
+                                 "the base colour factor is used")
+            return None, tex_coord, transform, None
+        tspec = self.textures[tex]
+        tspec = tspec if isinstance(tspec, dict) else {}
+        source = tspec.get("source")
+        if isinstance(source, bool) or not isinstance(source, int) or not (
+                0 <= source < len(self.images)):
+            self.warnings.append(f"{label}: texture {tex} has no image source this loader reads"
+                                 ": dropped, the base colour factor is used")
+            return None, tex_coord, transform, None
+        image = self._image(source)
+        if isinstance(image, str):
+            self.warnings.append(f"{_label('image', source, self.images[source])} of {label}: "
+                                 f"{image}; the texture is dropped and the base colour factor "
+                                 "is used")
+            return None, tex_coord, transform, None
+        return image, tex_coord, transform, self._wrap(tspec)
+
+    def _wrap(self, tspec: dict[str, Any]) -> str | None:
+        sampler = tspec.get("sampler")
+        if isinstance(sampler, bool) or not isinstance(sampler, int) or not (
+                0 <= sampler < len(self.samplers)) or not isinstance(self.samplers[sampler], dict):
+            return None
+        spec = self.samplers[sampler]
+        for key in ("wrapS", "wrapT"):
+            mode = spec.get(key, REPEAT)
+            if mode != REPEAT:
+                return WRAP_NAMES.get(mode, str(mode)) if isinstance(mode, int) else str(mode)
+        return None
+
+    def _image(self, index: int) -> np.ndarray | str:
+        """The decoded image, or why it cannot be used."""
+        if index in self._images:
+            return self._images[index]
+        spec = self.images[index]
+        result: np.ndarray | str
+        try:
+            if not isinstance(spec, dict):
+                raise SceneError("malformed image")
+            if "bufferView" in spec:
+                bv = spec["bufferView"]
+                if isinstance(bv, bool) or not isinstance(bv, int):
+                    raise SceneError(f"bufferView {bv!r} is not an index")
+                data = self.buffers.view(bv)
+            elif "uri" in spec:
+                data = load_uri(spec["uri"], self.resolver, "the image")
+            else:
+                raise SceneError("the image has neither a uri nor a bufferView")
+        except SceneError as exc:
+            result = f"cannot be read ({exc})"
+        else:
+            try:
+                result = decode_image(data)
+            except Exception as exc:  # noqa: BLE001 - PIL raises many types on bad input
+                result = f"cannot be decoded ({type(exc).__name__}: {exc})"
+        self._images[index] = result
+        return result

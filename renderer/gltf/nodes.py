@@ -1,0 +1,248 @@
+"""The node graph: local and world matrices of every node, computed once and vectorised.
+
+The graph is walked iteratively, level by level from the parentless nodes, so depth costs no
+recursion and every node is visited once; each level's world matrices are one batched matrix
+product. A node listed as the child of two parents, or a cycle, is a ``SceneError``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import SceneError
+from .reader import get_index, get_list
+
+#: ``NodeGraph.camera`` of a node whose camera index is out of range.
+INVALID = -2
+
+
+def trs_matrices(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """``T @ R @ S`` for many translation/rotation/scale triples at once.
+
+    Parameters
+    ----------
+    t : ndarray, shape (K, 3)
+    r : ndarray, shape (K, 4)
+        Quaternions (x, y, z, w), used as given (glTF requires unit quaternions).
+    s : ndarray, shape (K, 3)
+
+    Returns
+    -------
+    ndarray, shape (K, 4, 4), float64
+    """
+    t, r, s = (np.asarray(a, np.float64) for a in (t, r, s))
+    x, y, z, w = r.T
+    m = np.zeros((len(t), 4, 4))
+    rot = np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], 1)
+    m[:, :3, :3] = rot * s[:, None, :]  # R @ diag(s): scales the columns
+    m[:, :3, 3] = t
+    m[:, 3, 3] = 1.0
+    return m
+
+
+@dataclass
+class NodeGraph:
+    """Every node of a document with its place in the graph.
+
+    Attributes
+    ----------
+    nodes : list of dict
+        The nodes' JSON.
+    local, world : ndarray, shape (N, 4, 4), float64
+        Node-to-parent and node-to-world matrices (world may hold non-finite values; users
+        refuse them where it matters).
+    parent : ndarray, shape (N,), int64
+        -1 for root nodes.
+    order : ndarray, shape (N,), int64
+        Nodes in breadth-first order from the roots (parents before children).
+    in_scene : ndarray, shape (N,), bool
+        The node belongs to the scene drawn (the default scene, or all roots when none is set).
+    """
+
+    nodes: list[dict[str, Any]]
+    local: np.ndarray
+    world: np.ndarray
+    parent: np.ndarray
+    order: np.ndarray
+    in_scene: np.ndarray
+    #: What each node references, -1 for nothing: ``mesh``, ``skin``, ``camera`` (validated
+    #: indices; :data:`INVALID` for a camera index that is not one), read in the same single
+    #: pass over the nodes as the transforms.
+    mesh: np.ndarray
+    skin: np.ndarray
+    camera: np.ndarray
+    #: ``extras.castShadow`` / ``extras.receiveShadow`` of each node: 1, 0, or -1 when unset.
+    cast: np.ndarray
+    receive: np.ndarray
+    #: The node needs per-node work beyond its world matrix: morph weights or an extension
+    #: (EXT_mesh_gpu_instancing, KHR_lights_punctual).
+    special: np.ndarray
+    names: list[str]
+
+    def scene_nodes(self) -> np.ndarray:
+        """Indices of the nodes of the drawn scene, ascending."""
+        return np.flatnonzero(self.in_scene)
+
+
+_VECTORS = {"matrix": 16, "translation": 3, "rotation": 4, "scale": 3}
+_REFS = ("mesh", "skin", "camera")
+_COLLECTED = (*_VECTORS, *_REFS, "children", "extras", "name", "weights", "extensions")
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _vectors(key: str, rows: list[int], values: list[Any]) -> np.ndarray:
+    """The ``key`` arrays of the nodes ``rows`` as one (len(rows), n) float64 array."""
+    n = _VECTORS[key]
+    try:
+        arr = np.array(values)
+    except ValueError:  # ragged
+        arr = np.zeros(0)
+    # Numbers only (a list holding strings, objects or only booleans has another dtype kind).
+    if arr.shape == (len(values), n) and arr.dtype.kind in "iuf":
+        return arr.astype(np.float64)
+    for i, v in zip(rows, values, strict=True):  # find the culprit for the message
+        if (not isinstance(v, list) or len(v) != n
+                or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)):
+            raise SceneError(f"node {i}: '{key}' must be an array of {n} numbers")
+    raise SceneError(f"malformed glTF: node '{key}' arrays")  # pragma: no cover
+
+
+def build_graph(doc: dict[str, Any]) -> NodeGraph:
+    """Local and world matrices of every node, and which nodes the drawn scene holds.
+
+    The drawn scene is ``scenes[scene]``; when ``scene`` is absent, every root node is drawn.
+    The nodes are walked once in Python, collecting each field's values; the fields are then
+    checked and turned into arrays field by field.
+
+    Raises
+    ------
+    SceneError
+        Malformed nodes, matrices or TRS; a child index out of range; a node with two parents;
+        a cycle; an invalid ``scene`` or scene node index.
+    """
+    nodes = get_list(doc, "nodes")
+    n = len(nodes)
+    collected: dict[str, tuple[list[int], list[Any]]] = {k: ([], []) for k in _COLLECTED}
+    # The one Python pass over the nodes.
+    for i, node in enumerate(nodes):
+        if not isinstance(node, dict):
+            raise SceneError(f"malformed glTF: node {i} is not an object")
+        for key, value in node.items():
+            slot = collected.get(key)
+            if slot is not None:
+                slot[0].append(i)
+                slot[1].append(value)
+
+    def field(key: str) -> tuple[list[int], list[Any]]:
+        return collected[key]
+
+    t = np.zeros((n, 3))
+    r = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
+    s = np.ones((n, 3))
+    for key, arr in (("translation", t), ("rotation", r), ("scale", s)):
+        rows, values = field(key)
+        if rows:
+            arr[rows] = _vectors(key, rows, values)
+    m_rows, m_values = field("matrix")
+    matrix = _vectors("matrix", m_rows, m_values) if m_rows else np.zeros((0, 16))
+
+    lengths = {"mesh": len(get_list(doc, "meshes")), "skin": len(get_list(doc, "skins")),
+               "camera": len(get_list(doc, "cameras"))}
+    refs = {key: np.full(n, -1, np.int64) for key in _REFS}
+    for key in _REFS:
+        rows, values = field(key)
+        ok = [_is_int(v) and 0 <= v < lengths[key] for v in values]
+        if not all(ok):
+            bad = ok.index(False)
+            if key != "camera":
+                raise SceneError(f"node {rows[bad]}: '{key}' = {values[bad]!r} is not a valid "
+                                 f"index (0..{lengths[key] - 1})")
+        good = [v if k else INVALID for v, k in zip(values, ok, strict=True)]
+        # A bad camera reference costs the camera (INVALID), not the scene.
+        refs[key][rows] = good
+
+    names = [f"node_{i}" for i in range(n)]
+    for i, name in zip(*field("name"), strict=True):
+        if isinstance(name, str) and name:
+            names[i] = name
+    cast = np.full(n, -1, np.int8)
+    receive = np.full(n, -1, np.int8)
+    for i, extras in zip(*field("extras"), strict=True):
+        if isinstance(extras, dict):
+            for key, flags in (("castShadow", cast), ("receiveShadow", receive)):
+                if isinstance(extras.get(key), bool):
+                    flags[i] = extras[key]
+    special = np.zeros(n, bool)
+    special[field("weights")[0]] = True
+    special[[i for i, e in zip(*field("extensions"), strict=True) if e]] = True
+
+    parent = np.full(n, -1, np.int64)
+    children: list[list[int]] = [[] for _ in range(n)]
+    for i, kids in zip(*field("children"), strict=True):
+        if not isinstance(kids, list):
+            raise SceneError(f"node {i}: 'children' is not an array")
+        for c in kids:
+            if not _is_int(c) or not 0 <= c < n:
+                raise SceneError(f"node {i}: child {c!r} is not a valid node index")
+            if parent[c] != -1:
+                raise SceneError(f"node {c} has two parents (nodes {parent[c]} and {i}): the "
+                                 "node graph must be a forest")
+            parent[c] = i
+        children[i] = kids
+    local = trs_matrices(t, r, s)
+    # glTF matrices are column-major: the 16 numbers are the columns. A matrix wins over TRS.
+    local[m_rows] = matrix.reshape(-1, 4, 4).transpose(0, 2, 1)
+
+    # The scene drawn, and its listed nodes.
+    listed = np.zeros(n, bool)
+    scenes = get_list(doc, "scenes")
+    scene_index = get_index(doc, "scene", len(scenes), "the file's default 'scene'")
+    if scene_index is not None:
+        scene = scenes[scene_index]
+        if not isinstance(scene, dict):
+            raise SceneError(f"malformed glTF: scene {scene_index} is not an object")
+        roots = scene.get("nodes", [])
+        if not isinstance(roots, list):
+            raise SceneError(f"scene {scene_index}: 'nodes' is not an array")
+        for x in roots:
+            if isinstance(x, bool) or not isinstance(x, int) or not 0 <= x < n:
+                raise SceneError(f"scene {scene_index}: node {x!r} is not a valid node index")
+            listed[x] = True
+    else:
+        listed[parent == -1] = True
+
+    # Level by level from the roots: each level's world matrices in one batched product.
+    world = np.empty_like(local)
+    in_scene = np.zeros(n, bool)
+    level = np.flatnonzero(parent == -1)
+    world[level] = local[level]
+    in_scene[level] = listed[level]
+    order = [level]
+    seen = len(level)
+    while len(level):
+        nxt = np.fromiter((c for p in level for c in children[p]), np.int64)
+        if len(nxt):
+            with np.errstate(over="ignore", invalid="ignore"):  # refused where drawn
+                world[nxt] = world[parent[nxt]] @ local[nxt]
+            in_scene[nxt] = in_scene[parent[nxt]] | listed[nxt]
+            order.append(nxt)
+            seen += len(nxt)
+        level = nxt
+    if seen < n:
+        # With one parent per node, the nodes never reached from a root lie on a cycle.
+        reached = np.zeros(n, bool)
+        reached[np.concatenate(order)] = True
+        first = int(np.flatnonzero(~reached)[0])
+        raise SceneError(f"the node graph has a cycle (through node {first})")
+    return NodeGraph(nodes, local, world, parent, np.concatenate(order), in_scene,
+                     refs["mesh"], refs["skin"], refs["camera"], cast, receive, special, names)

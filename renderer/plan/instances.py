@@ -1,0 +1,276 @@
+"""A scene's instances as arrays: what every plan of the scene reads, built once per scene.
+
+The plan works on arrays over all instances (boxes, flags, the planes of flat instances), never
+on one :class:`~shadowmap.renderer.scene.Instance` at a time. Reading them out of the scene's
+objects is the only step that visits each instance in Python, so it is done once per scene and
+kept, keyed by the :class:`~shadowmap.renderer.scene.Scene` object in a weak mapping (nothing is
+written into the scene; the entry goes when the scene does). A repeated request on the same scene
+(a cached parse, the service's scene cache, a benchmark's repeats) reuses them; so does a request
+with the same origin, for the origin-relative boxes and corners.
+
+A cached entry is reused while the scene holds the same ``instances`` and ``primitives`` lists
+with the same lengths. Changing an instance in place (its matrix, bounds or flags) after the scene
+was planned is not seen, as for the upload cache, which keeps a scene's matrices on the GPU by
+its key: build a new :class:`Scene` for changed content.
+
+Planarity is a property of the primitive: it is decided once per primitive (an SVD of its
+vertices, cached per primitive in the same way) and carried to every instance of it at once, with
+one batched solve for the normals (the inverse transpose of each node matrix).
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from dataclasses import dataclass, field
+from operator import attrgetter
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .geometry import box_corners
+
+if TYPE_CHECKING:  # the scene module is the planner's input: types only
+    from ..scene import Instance, Primitive, Scene
+
+# (unit normal, point) of a flat primitive, or None; keyed by the primitive so that repeated
+# renders of a cached scene do not redo the SVD, without writing into the scene's objects.
+_PLANES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# SceneArrays by scene, same reasoning. One lock for both maps: the service may plan on more than
+# one thread, and a weak mapping is not safe to grow from two at once.
+_SCENES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_LOCK = threading.Lock()
+# Origins kept per scene: the renderer plans relative to its upload's origin, which is the same
+# for every request on a scene; a few more cover callers that pass their own.
+_MAX_ORIGINS = 4
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a``, made read-only: these arrays are shared by every request on the scene."""
+    a.flags.writeable = False
+    return a
+
+
+def primitive_plane(prim: Primitive) -> tuple[np.ndarray, np.ndarray] | None:
+    """The plane of a flat primitive in its local frame.
+
+    Returns
+    -------
+    (normal, point) : ndarray, shape (3,) each, or None
+        Unit normal and the vertices' centre when every vertex lies on one plane; None otherwise
+        (fewer than three vertices, a single point, or a curved or folded mesh).
+    """
+    with _LOCK:
+        if prim in _PLANES:
+            return _PLANES[prim]
+    p = prim.positions.astype(np.float64)
+    centre = p.mean(axis=0)
+    extent = float(np.max(p.max(axis=0) - p.min(axis=0)))
+    result = None
+    if len(p) >= 3 and extent > 0:
+        _, sv, vt = np.linalg.svd(p - centre, full_matrices=False)
+        if sv[-1] <= 1e-7 * max(sv[0], 1e-300) * np.sqrt(len(p)) or np.max(
+            np.abs((p - centre) @ vt[-1])
+        ) <= 1e-7 * extent:
+            result = (_frozen(vt[-1]), _frozen(centre))
+    with _LOCK:
+        _PLANES[prim] = result
+    return result
+
+
+@dataclass(frozen=True)
+class Planes:
+    """The planes of the flat instances (those of a flat primitive with an invertible matrix).
+
+    Attributes
+    ----------
+    flat : ndarray, shape (N,), bool
+    normal : ndarray, shape (N, 3)
+        Unit normal in world space (carried by the inverse transpose, so that a non-uniformly
+        scaled plane keeps a true normal); zero where not flat.
+    point : ndarray, shape (N, 3)
+        A point of the plane (the primitive's vertex centre, placed); zero where not flat.
+        World space in :class:`SceneArrays`, origin-relative in a plan's context.
+    """
+
+    flat: np.ndarray
+    normal: np.ndarray
+    point: np.ndarray
+
+
+def instance_planes(primitives: list[Primitive], instances: list[Instance],
+                    prim_of: np.ndarray) -> Planes:
+    """The world planes of the flat instances, batched per primitive.
+
+    Parameters
+    ----------
+    primitives : list of Primitive
+    instances : list of Instance
+        Only the matrices of instances of flat primitives are read.
+    prim_of : ndarray, shape (N,), int
+        Each instance's primitive.
+
+    Returns
+    -------
+    Planes
+        A singular node matrix (or one whose normal comes out non-finite or zero) leaves its
+        instance without a plane.
+    """
+    n = len(prim_of)
+    flat = np.zeros(n, bool)
+    normal = np.zeros((n, 3))
+    point = np.zeros((n, 3))
+    for p in np.unique(prim_of).tolist():  # once per primitive, not per instance
+        plane = primitive_plane(primitives[p])
+        if plane is None:
+            continue
+        nrm, centre = plane
+        idx = np.flatnonzero(prim_of == p)
+        matrices = map(attrgetter("matrix"), map(instances.__getitem__, idx.tolist()))
+        m = np.concatenate(list(matrices)).reshape(-1, 4, 4)  # (K, 4, 4)
+        a = m[:, :3, :3]
+        # Only invertible matrices are solved (a batched solve fails on any singular one); the
+        # determinant is taken from the same LU factorisation the solve uses.
+        ok = np.abs(np.linalg.det(a)) > 0
+        n_w = np.full((len(idx), 3), np.nan)
+        if ok.any():
+            rhs = np.broadcast_to(nrm, (int(ok.sum()), 3))[..., None]
+            n_w[ok] = np.linalg.solve(a[ok].transpose(0, 2, 1), rhs)[..., 0]
+        # Norms summed in the order of a 3-vector's dot product, as for one instance at a time.
+        length = np.sqrt((n_w * n_w).sum(axis=1))
+        good = ok & np.all(np.isfinite(n_w), axis=1) & (length != 0)
+        sel = idx[good]
+        flat[sel] = True
+        normal[sel] = n_w[good] / length[good, None]
+        point[sel] = np.matmul(a[good], centre[:, None])[..., 0] + m[good, :3, 3]
+    return Planes(_frozen(flat), _frozen(normal), _frozen(point))
+
+
+@dataclass(frozen=True)
+class RelativeArrays:
+    """A scene's boxes relative to one origin.
+
+    Attributes
+    ----------
+    bounds : ndarray, shape (N, 2, 3)
+    corners : ndarray, shape (N, 8, 3)
+    centres : ndarray, shape (N, 3)
+        Box centres, ``bounds.mean(axis=1)`` (the same values).
+    planes : Planes
+        With origin-relative points.
+    extent : float
+        The largest side of any box (the scale of the plane tests' tolerance).
+    """
+
+    bounds: np.ndarray
+    corners: np.ndarray
+    centres: np.ndarray
+    planes: Planes
+    extent: float
+
+
+@dataclass(frozen=True, eq=False)
+class SceneArrays:
+    """What the plan reads of a scene's instances, as read-only arrays.
+
+    Attributes
+    ----------
+    bounds : ndarray, shape (N, 2, 3)
+        World boxes (min, max corner), as in :attr:`Instance.bounds`.
+    cast, receive : ndarray, shape (N,), bool
+        The instances' cast and receive flags.
+    primitive : ndarray, shape (N,), int
+        Each instance's primitive.
+    planes : Planes
+        World planes of the flat instances.
+    box : ndarray, shape (2, 3)
+        The box around every instance: :attr:`Scene.bounds`, the same values.
+    """
+
+    bounds: np.ndarray
+    cast: np.ndarray
+    receive: np.ndarray
+    primitive: np.ndarray
+    planes: Planes
+    box: np.ndarray
+    # What the entry was read from (checked on reuse), and its origin-relative arrays by origin.
+    _source: tuple = field(repr=False)
+    _relative: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def read(cls, scene: Scene) -> SceneArrays:
+        """Read the arrays out of the scene's instances (one pass over each attribute)."""
+        insts = scene.instances
+        n = len(insts)
+        # attrgetter maps keep the per-instance work inside C loops; concatenating the (2, 3)
+        # boxes along their first axis copies the same values as np.stack, at half the cost.
+        boxes = list(map(attrgetter("bounds"), insts))
+        bounds = np.concatenate(boxes).reshape(n, 2, 3) if n else np.zeros((0, 2, 3))
+        cast = np.fromiter(map(attrgetter("cast_shadow"), insts), bool, n)
+        receive = np.fromiter(map(attrgetter("receive_shadow"), insts), bool, n)
+        prim = np.fromiter(map(attrgetter("primitive"), insts), np.intp, n)
+        planes = instance_planes(scene.primitives, insts, prim)
+        box = np.stack([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
+        return cls(bounds=_frozen(bounds), cast=_frozen(cast), receive=_frozen(receive),
+                   primitive=_frozen(prim), planes=planes, box=_frozen(box),
+                   _source=_source(scene))
+
+    def relative(self, origin: np.ndarray) -> RelativeArrays:
+        """Boxes, corners and plane points relative to ``origin`` (cached per origin).
+
+        Parameters
+        ----------
+        origin : ndarray, shape (3,), float64
+        """
+        key = origin.tobytes()
+        with _LOCK:
+            hit = self._relative.get(key)
+        if hit is not None:
+            return hit
+        bounds = self.bounds - origin
+        rel = RelativeArrays(
+            bounds=_frozen(bounds),
+            corners=_frozen(box_corners(bounds)),
+            # The mean of two values, computed as ``mean`` does: their sum, halved.
+            centres=_frozen((bounds[:, 0] + bounds[:, 1]) / 2),
+            planes=Planes(self.planes.flat, self.planes.normal,
+                          _frozen(self.planes.point - origin)),
+            extent=float(np.max(bounds[:, 1] - bounds[:, 0])),
+        )
+        with _LOCK:
+            if len(self._relative) >= _MAX_ORIGINS:
+                self._relative.pop(next(iter(self._relative)))
+            self._relative[key] = rel
+        return rel
+
+
+def _source(scene: Scene) -> tuple:
+    """What a cached entry must still match: the scene's lists, by identity, and their lengths."""
+    return (scene.instances, len(scene.instances), scene.primitives, len(scene.primitives))
+
+
+def _same_source(a: tuple, b: tuple) -> bool:
+    """Whether two :func:`_source` tuples name the same lists at the same lengths."""
+    return a[0] is b[0] and a[1] == b[1] and a[2] is b[2] and a[3] == b[3]
+
+
+def scene_arrays(scene: Scene) -> SceneArrays:
+    """The scene's instance arrays, read once per scene and reused while it holds the same
+    instance and primitive lists (see the module's notes)."""
+    with _LOCK:
+        hit = _SCENES.get(scene)
+    if hit is not None and _same_source(hit._source, _source(scene)):
+        return hit
+    arrays = SceneArrays.read(scene)
+    with _LOCK:
+        _SCENES[scene] = arrays
+    return arrays
+
+
+def scene_box(scene: Scene) -> np.ndarray:
+    """The box around every instance of the scene, shape (2, 3), read-only.
+
+    The values of :attr:`Scene.bounds`, from :func:`scene_arrays`: resolving a request's camera
+    and lights needs it several times, and the property reads every instance each time.
+    """
+    return scene_arrays(scene).box

@@ -1,0 +1,1092 @@
+"""The project's glTF reader (``shadowmap.renderer.gltf``): container, accessors, primitives,
+materials, nodes, instancing, skins, morph targets, extensions, limits, and the model corpus.
+
+Most tests build their own small file with :func:`gltf_files.make_glb`; the corpus tests load
+every model in the models folder and compare with trimesh's loader where trimesh is right (no
+skins, Draco, meshopt or instancing). Only the last test needs GL.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import struct
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import models_dir
+from gltf_files import make_glb, split_glb
+from shadowmap.renderer import (
+    LimitError,
+    Limits,
+    RenderParams,
+    SceneError,
+    UnsupportedExtension,
+    load_scene,
+)
+from shadowmap.renderer.gltf.extensions import IGNORED, SUPPORTED
+from shadowmap.renderer.scene import MappingResolver, Scene
+
+FLOAT, UBYTE, BYTE, USHORT, SHORT, UINT = 5126, 5121, 5120, 5123, 5122, 5125
+DTYPES = {FLOAT: "<f4", UBYTE: "<u1", BYTE: "<i1", USHORT: "<u2", SHORT: "<i2", UINT: "<u4"}
+KINDS = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4", 16: "MAT4"}
+TRI = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+
+
+class Gltf:
+    """A glTF document under construction, with buffer 0 as the GLB's binary chunk."""
+
+    def __init__(self) -> None:
+        self.doc: dict = {"asset": {"version": "2.0"}, "buffers": [{"byteLength": 0}],
+                          "bufferViews": [], "accessors": [], "meshes": [], "nodes": [],
+                          "scenes": [{"nodes": []}], "scene": 0}
+        self.blob = bytearray()
+
+    def view(self, data: bytes, stride: int | None = None) -> int:
+        self.blob += b"\0" * (-len(self.blob) % 4)
+        v = {"buffer": 0, "byteOffset": len(self.blob), "byteLength": len(data)}
+        if stride:
+            v["byteStride"] = stride
+        self.blob += data
+        self.doc["bufferViews"].append(v)
+        return len(self.doc["bufferViews"]) - 1
+
+    def accessor(self, values=None, ctype: int = FLOAT, kind: str | None = None,
+                 view: int | None = None, **fields) -> int:
+        acc: dict = {"componentType": ctype}
+        if values is not None:
+            arr = np.asarray(values, DTYPES[ctype])
+            n = arr.shape[1] if arr.ndim == 2 else (16 if arr.ndim == 3 else 1)
+            if view is None:
+                data = arr.transpose(0, 2, 1).tobytes() if arr.ndim == 3 else arr.tobytes()
+                view = self.view(data)
+            acc.update(count=len(arr), type=kind or KINDS[n])
+        elif kind:
+            acc["type"] = kind
+        if view is not None:
+            acc["bufferView"] = view
+        acc.update(fields)
+        self.doc["accessors"].append(acc)
+        return len(self.doc["accessors"]) - 1
+
+    def mesh(self, *primitives: dict, **fields) -> int:
+        self.doc["meshes"].append({"primitives": list(primitives), **fields})
+        return len(self.doc["meshes"]) - 1
+
+    def node(self, root: bool = True, **fields) -> int:
+        self.doc["nodes"].append(fields)
+        i = len(self.doc["nodes"]) - 1
+        if root:
+            self.doc["scenes"][0]["nodes"].append(i)
+        return i
+
+    def triangle(self, positions=TRI, **prim) -> int:
+        """A mesh of one primitive with POSITION ``positions`` (and ``prim`` fields)."""
+        attrs = prim.pop("attributes", {})
+        return self.mesh({"attributes": {"POSITION": self.accessor(positions), **attrs}, **prim})
+
+    def glb(self) -> bytes:
+        self.doc["buffers"][0]["byteLength"] = max(len(self.blob), 1)
+        return make_glb(self.doc, bytes(self.blob) or b"\0\0\0\0")
+
+    def load(self, **kw) -> Scene:
+        return load_scene(self.glb(), **kw)
+
+
+def one_triangle() -> Gltf:
+    g = Gltf()
+    g.node(mesh=g.triangle())
+    return g
+
+
+def png(rgba: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.asarray(rgba, np.uint8), "RGBA").save(buf, "PNG")
+    return buf.getvalue()
+
+
+def png_header_only(width: int, height: int) -> bytes:
+    """A PNG whose header declares ``width x height`` pixels (its pixel data is a stub)."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (struct.pack(">I", len(data)) + kind + data
+                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0"))
+            + chunk(b"IEND", b""))
+
+
+# ------------------------------------------------------------------------------------------------
+# Container
+# ------------------------------------------------------------------------------------------------
+
+
+def test_file_type_is_decided_by_content(tmp_path):
+    g = one_triangle()
+    g.doc["buffers"][0] = {"byteLength": 36, "uri": "data:application/octet-stream;base64,"
+                           + __import__("base64").b64encode(TRI.tobytes()).decode()}
+    text = json.dumps(g.doc).encode()
+    named_glb = tmp_path / "scene.glb"
+    named_glb.write_bytes(text)
+    assert load_scene(named_glb).triangle_count == 1
+    assert load_scene(text, file_type="glb").triangle_count == 1
+    named_gltf = tmp_path / "binary.gltf"
+    named_gltf.write_bytes(one_triangle().glb())
+    assert load_scene(named_gltf).triangle_count == 1
+
+
+def _glb_with(header_len: int | None = None, version: int = 2, chunk_type: int = 0x4E4F534A,
+              chunk_len: int | None = None, tail: bytes = b"") -> bytes:
+    js = json.dumps({"asset": {"version": "2.0"}}).encode()
+    js += b" " * (-len(js) % 4)
+    body = struct.pack("<II", len(js) if chunk_len is None else chunk_len, chunk_type) + js + tail
+    total = 12 + len(body)
+    return b"glTF" + struct.pack("<II", version, total if header_len is None else header_len) + body
+
+
+@pytest.mark.parametrize("data, message", [
+    (b"glTF\x02\x00", "truncated binary glTF"),
+    (_glb_with(version=1), "version 1 is not supported"),
+    (_glb_with(header_len=10_000), "truncated binary glTF: header says 10000"),
+    (_glb_with(header_len=16), "corrupt binary glTF"),
+    (_glb_with(chunk_type=0x004E4942), "first chunk is not a complete JSON chunk"),
+    (_glb_with(chunk_len=4000), "first chunk is not a complete JSON chunk"),
+    (_glb_with(tail=struct.pack("<II", 400, 0x004E4942) + b"\0" * 8), "past the file's end"),
+])
+def test_glb_header_and_chunks_are_validated(data, message):
+    with pytest.raises(SceneError, match=message):
+        load_scene(data)
+
+
+def test_unknown_glb_chunks_are_skipped():
+    g = one_triangle()
+    doc, blob = split_glb(g.glb())
+    glb = make_glb(doc, blob)
+    extra = struct.pack("<II", 4, 0x12345678) + b"abcd"
+    body = glb[12:] + extra
+    glb = b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body
+    assert load_scene(glb).triangle_count == 1
+
+
+@pytest.mark.parametrize("data, message", [
+    (b"{not json", "JSON cannot be parsed"),
+    (b"[1, 2]", "not an object"),
+    (b'{"asset": {"version": "2.0"}, "x": ' + b"[" * 200_000 + b"]" * 200_000 + b"}",
+     "nests too deep"),
+    (b"\xff\xfe\x00", "JSON cannot be parsed"),
+])
+def test_json_errors_are_scene_errors(data, message):
+    with pytest.raises(SceneError, match=message):
+        load_scene(data)
+
+
+@pytest.mark.parametrize("asset, message", [
+    ("2.0", "'asset' is not an object"),
+    ({}, "asset.version"),
+    ({"version": 2}, "asset.version"),
+    ({"version": "3.0"}, "asset.version"),
+    ({"version": "1.0"}, "asset.version"),
+    ({"version": "2.0", "minVersion": "2.1"}, "asset.minVersion"),
+    ({"version": "2.0", "minVersion": "two"}, "asset.minVersion"),
+])
+def test_asset_is_checked(asset, message):
+    g = one_triangle()
+    g.doc["asset"] = asset
+    with pytest.raises(SceneError, match=message):
+        g.load()
+
+
+def test_newer_minor_versions_load():
+    g = one_triangle()
+    g.doc["asset"] = {"version": "2.7", "minVersion": "2.0"}
+    assert g.load().triangle_count == 1
+
+
+# ------------------------------------------------------------------------------------------------
+# Accessors
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("ctype, normalized, raw, expected", [
+    (UBYTE, True, [[0, 0, 0], [255, 0, 0], [0, 255, 0]], [[0, 0, 0], [1, 0, 0], [0, 1, 0]]),
+    (BYTE, True, [[-128, 0, 0], [127, 0, 0], [0, 127, 0]], [[-1, 0, 0], [1, 0, 0], [0, 1, 0]]),
+    (USHORT, True, [[0, 0, 0], [65535, 0, 0], [0, 65535, 0]], [[0, 0, 0], [1, 0, 0], [0, 1, 0]]),
+    (SHORT, True, [[-32768, 0, 0], [32767, 0, 0], [0, 32767, 0]],
+     [[-1, 0, 0], [1, 0, 0], [0, 1, 0]]),
+    (USHORT, False, [[0, 0, 0], [1000, 0, 0], [0, 2, 0]], [[0, 0, 0], [1000, 0, 0], [0, 2, 0]]),
+    (BYTE, False, [[-5, 0, 0], [7, 0, 0], [0, 3, 0]], [[-5, 0, 0], [7, 0, 0], [0, 3, 0]]),
+])
+def test_quantized_positions(ctype, normalized, raw, expected):
+    """KHR_mesh_quantization: 8/16-bit positions, each element padded to 4 bytes."""
+    g = Gltf()
+    g.doc["extensionsUsed"] = g.doc["extensionsRequired"] = ["KHR_mesh_quantization"]
+    arr = np.asarray(raw, DTYPES[ctype])
+    itemsize = arr.dtype.itemsize
+    stride = 4 * math.ceil(3 * itemsize / 4)
+    padded = np.zeros((3, stride // itemsize), arr.dtype)
+    padded[:, :3] = arr
+    view = g.view(padded.tobytes(), stride=stride)
+    pos = g.accessor(ctype=ctype, kind="VEC3", view=view, count=3,
+                     **({"normalized": True} if normalized else {}))
+    g.node(mesh=g.mesh({"attributes": {"POSITION": pos}}))
+    scene = g.load()
+    np.testing.assert_allclose(scene.primitives[0].positions, expected, atol=1e-6)
+    assert not scene.warnings
+
+
+def test_quantized_normals_and_texcoords():
+    g = Gltf()
+    nrm = np.array([[0, 0, 127, 0]] * 3, np.int8)  # padded VEC3 bytes, normalized
+    n_view = g.view(nrm.tobytes(), stride=4)
+    n_acc = g.accessor(ctype=BYTE, kind="VEC3", view=n_view, count=3, normalized=True)
+    uv = g.accessor(np.array([[0, 0], [65535, 0], [0, 65535]]), ctype=USHORT, normalized=True)
+    g.doc["images"] = [{"bufferView": g.view(png(np.full((2, 2, 4), 255))),
+                        "mimeType": "image/png"}]
+    g.doc["textures"] = [{"source": 0}]
+    g.doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+    g.node(mesh=g.triangle(attributes={"NORMAL": n_acc, "TEXCOORD_0": uv}, material=0))
+    prim = g.load().primitives[0]
+    np.testing.assert_allclose(prim.normals, [[0, 0, 1]] * 3, atol=1e-6)
+    np.testing.assert_allclose(prim.uv, [[0, 1], [1, 1], [0, 0]], atol=1e-6)
+
+
+def test_interleaved_view_with_view_and_accessor_offsets():
+    g = Gltf()
+    g.view(b"\xee" * 8)  # something before, so the view's byteOffset is not 0
+    uv = np.array([[0.25, 0.5], [0.75, 0.5], [0.25, 1.0]], np.float32)
+    inter = np.concatenate([np.zeros((3, 1), np.float32), TRI, uv], axis=1)  # 4 pad bytes first
+    view = g.view(inter.tobytes(), stride=24)
+    pos = g.accessor(ctype=FLOAT, kind="VEC3", view=view, count=3, byteOffset=4)
+    tex = g.accessor(ctype=FLOAT, kind="VEC2", view=view, count=3, byteOffset=16)
+    g.doc["images"] = [{"bufferView": g.view(png(np.full((2, 2, 4), 255)))}]
+    g.doc["textures"] = [{"source": 0}]
+    g.doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+    g.node(mesh=g.mesh({"attributes": {"POSITION": pos, "TEXCOORD_0": tex}, "material": 0}))
+    prim = g.load().primitives[0]
+    np.testing.assert_array_equal(prim.positions, TRI)
+    np.testing.assert_allclose(prim.uv, np.c_[uv[:, 0], 1 - uv[:, 1]])
+
+
+def test_every_index_component_type():
+    for ctype in (UBYTE, USHORT, UINT):
+        g = Gltf()
+        idx = g.accessor(np.array([0, 2, 1, 0, 1, 2]), ctype=ctype)
+        g.node(mesh=g.triangle(indices=idx))
+        prim = g.load().primitives[0]
+        np.testing.assert_array_equal(prim.indices, [[0, 2, 1], [0, 1, 2]])
+        assert prim.indices.dtype == np.uint32
+
+
+@pytest.mark.parametrize("with_view", [True, False])
+def test_sparse_accessors(with_view):
+    g = Gltf()
+    base = np.array([[0, 0, 0], [5, 5, 5], [9, 9, 9]], np.float32)
+    sparse = {"count": 2,
+              "indices": {"bufferView": g.view(np.array([1, 2], np.uint16).tobytes()),
+                          "componentType": USHORT},
+              "values": {"bufferView": g.view(TRI[1:].tobytes())}}
+    if with_view:
+        pos = g.accessor(base, sparse=sparse)
+    else:
+        pos = g.accessor(None, kind="VEC3", count=3, sparse=sparse)
+    g.node(mesh=g.mesh({"attributes": {"POSITION": pos}}))
+    np.testing.assert_array_equal(g.load().primitives[0].positions, TRI)
+
+
+def test_sparse_index_out_of_range():
+    g = Gltf()
+    sparse = {"count": 1, "indices": {"bufferView": g.view(np.array([7], np.uint32).tobytes()),
+                                      "componentType": UINT},
+              "values": {"bufferView": g.view(TRI[:1].tobytes())}}
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(TRI, sparse=sparse)}}))
+    with pytest.raises(SceneError, match="accessor 0 sparse: index 7"):
+        g.load()
+
+
+def test_accessor_past_its_view_names_the_accessor():
+    g = Gltf()
+    g.node(mesh=g.triangle())
+    g.doc["accessors"][0]["count"] = 4
+    with pytest.raises(SceneError, match="accessor 0 reads past the end of bufferView 0"):
+        g.load()
+    g = Gltf()
+    g.node(mesh=g.triangle())
+    g.doc["accessors"][0]["byteOffset"] = 4
+    with pytest.raises(SceneError, match="accessor 0 reads past the end"):
+        g.load()
+
+
+def test_view_past_its_buffer_names_the_accessor():
+    g = Gltf()
+    g.node(mesh=g.triangle())
+    glb = g.glb()
+    doc, blob = split_glb(glb)
+    doc["bufferViews"][0]["byteOffset"] = 8
+    with pytest.raises(SceneError, match="accessor 0: bufferView 0 reaches past the end of"):
+        load_scene(make_glb(doc, blob[:36]))
+
+
+@pytest.mark.parametrize("kind, ctype", [("VEC2", FLOAT), ("SCALAR", FLOAT), ("VEC3", UINT),
+                                          ("VEC4", FLOAT)])
+def test_position_of_the_wrong_type_is_refused(kind, ctype):
+    g = Gltf()
+    values = np.zeros((3, {"VEC2": 2, "SCALAR": 1, "VEC3": 3, "VEC4": 4}[kind]))
+    if kind == "SCALAR":
+        values = values[:, 0]
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(values, ctype=ctype)}}))
+    with pytest.raises(SceneError, match="mesh 0 primitive 0 POSITION is accessor 0"):
+        g.load()
+
+
+def test_external_buffers_come_only_from_resources():
+    g = one_triangle()
+    doc, blob = split_glb(g.glb())
+    doc["buffers"][0]["uri"] = "geometry/tri.bin"
+    text = json.dumps(doc).encode()
+    scene = load_scene(text, resources={"geometry/tri.bin": blob})
+    assert scene.triangle_count == 1
+    with pytest.raises(SceneError, match="not provided"):
+        load_scene(text)
+    doc["buffers"][0]["uri"] = "../tri.bin"
+    with pytest.raises(SceneError, match="outside"):
+        load_scene(json.dumps(doc).encode(), resources={"tri.bin": blob})
+
+
+def test_meshopt_views_are_decoded_through_the_extension_module(monkeypatch):
+    """The decoder gets the extension's own bytes and fields; its output is the view's data
+    when the fallback buffer holds nothing."""
+    from shadowmap.renderer.gltf.extensions import meshopt
+
+    calls = []
+
+    def fake(source, count, byte_stride, mode, filter):
+        calls.append((bytes(source), count, byte_stride, mode, filter))
+        return TRI.tobytes()
+
+    monkeypatch.setattr(meshopt, "decode_buffer_view", fake)
+    compressed = b"HEAD" + b"packed!!" + b"tail"
+    doc = {
+        "asset": {"version": "2.0"},
+        "extensionsUsed": ["EXT_meshopt_compression"],
+        "extensionsRequired": ["EXT_meshopt_compression"],
+        "buffers": [{"byteLength": len(compressed)},
+                    {"byteLength": 36, "extensions": {"EXT_meshopt_compression":
+                                                      {"fallback": True}}}],
+        "bufferViews": [{"buffer": 1, "byteOffset": 0, "byteLength": 36, "byteStride": 12,
+                         "extensions": {"EXT_meshopt_compression": {
+                             "buffer": 0, "byteOffset": 4, "byteLength": 8, "byteStride": 12,
+                             "count": 3, "mode": "ATTRIBUTES", "filter": "NONE"}}}],
+        "accessors": [{"bufferView": 0, "componentType": FLOAT, "count": 3, "type": "VEC3"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}], "scene": 0,
+    }
+    scene = load_scene(make_glb(doc, compressed))
+    assert calls == [(b"packed!!", 3, 12, "ATTRIBUTES", "NONE")]
+    np.testing.assert_array_equal(scene.primitives[0].positions, TRI)
+
+
+# ------------------------------------------------------------------------------------------------
+# Primitives
+# ------------------------------------------------------------------------------------------------
+
+
+def _face_normals(prim) -> np.ndarray:
+    t = prim.positions[prim.indices].astype(np.float64)
+    return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+
+
+def test_strips_keep_their_winding():
+    quad = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 2, 0], [1, 2, 0]], np.float32)
+    for indexed in (False, True):
+        g = Gltf()
+        prim = {"mode": 5}
+        if indexed:
+            prim["indices"] = g.accessor(np.arange(6), ctype=USHORT)
+        g.node(mesh=g.triangle(quad, **prim))
+        p = g.load().primitives[0]
+        np.testing.assert_array_equal(p.indices, [[0, 1, 2], [1, 3, 2], [2, 3, 4], [3, 5, 4]])
+        assert np.all(_face_normals(p)[:, 2] > 0)
+
+
+def test_fans_keep_their_winding():
+    fan = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [-1, 1, 0]], np.float32)
+    g = Gltf()
+    g.node(mesh=g.triangle(fan, mode=6))
+    p = g.load().primitives[0]
+    assert len(p.indices) == 3
+    assert np.all(_face_normals(p)[:, 2] > 0)
+
+
+def test_points_and_lines_are_left_out_with_a_warning():
+    g = Gltf()
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(TRI)}, "mode": 1},
+                       {"attributes": {"POSITION": g.accessor(TRI)}}, name="wire"))
+    scene = g.load()
+    assert scene.triangle_count == 1
+    (w,) = scene.warnings
+    assert "mesh 0 ('wire') primitive 0" in w and "LINES" in w
+
+
+def test_nothing_drawable_says_what_was_left_out():
+    g = Gltf()
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(TRI)}, "mode": 0}))
+    with pytest.raises(SceneError, match="no triangles to render.*primitive 0.*POINTS"):
+        g.load()
+
+
+def test_indices_out_of_range_drop_the_primitive():
+    g = Gltf()
+    bad = {"attributes": {"POSITION": g.accessor(TRI)},
+           "indices": g.accessor(np.array([0, 1, 5]), ctype=USHORT)}
+    g.node(mesh=g.mesh(bad, {"attributes": {"POSITION": g.accessor(TRI)}}))
+    scene = g.load()
+    assert len(scene.primitives) == 1
+    assert any("mesh 0 primitive 0" in w and "out of range" in w for w in scene.warnings)
+
+
+def test_primitive_restart_value_drops_the_primitive():
+    g = Gltf()
+    pos = np.zeros((256, 3), np.float32)
+    pos[:3] = TRI
+    bad = {"attributes": {"POSITION": g.accessor(pos)},
+           "indices": g.accessor(np.array([0, 1, 2, 0, 1, 255]), ctype=UBYTE)}
+    g.node(mesh=g.mesh(bad, {"attributes": {"POSITION": g.accessor(TRI)}}))
+    scene = g.load()
+    assert len(scene.primitives) == 1
+    assert any("mesh 0 primitive 0" in w and "primitive-restart" in w for w in scene.warnings)
+
+
+def test_primitive_without_position_is_skipped():
+    g = Gltf()
+    g.node(mesh=g.mesh({"attributes": {"NORMAL": g.accessor(TRI)}},
+                       {"attributes": {"POSITION": g.accessor(TRI)}}))
+    scene = g.load()
+    assert len(scene.primitives) == 1
+    assert any("primitive 0" in w and "POSITION" in w for w in scene.warnings)
+
+
+def test_only_referenced_vertices_are_kept():
+    g = Gltf()
+    pos = np.concatenate([TRI, np.full((5, 3), np.nan, np.float32)])  # unused, even NaN
+    g.node(mesh=g.triangle(pos, indices=g.accessor(np.array([0, 1, 2]), ctype=USHORT)))
+    prim = g.load().primitives[0]
+    np.testing.assert_array_equal(prim.positions, TRI)
+
+
+def test_normals_are_the_files_or_area_weighted():
+    g = Gltf()
+    nrm = g.accessor(np.array([[0, 0, 2], [0, 0, 1], [0, 0, 0]], np.float32))
+    g.node(mesh=g.triangle(attributes={"NORMAL": nrm}))
+    g.node(mesh=g.triangle())
+    with_normals, computed = g.load().primitives
+    np.testing.assert_allclose(with_normals.normals, [[0, 0, 1]] * 3)  # zero one filled in
+    np.testing.assert_allclose(computed.normals, [[0, 0, 1]] * 3)
+
+
+def test_vertex_colours_only_when_not_all_white():
+    g = Gltf()
+    g.node(mesh=g.triangle(attributes={"COLOR_0": g.accessor(np.ones((3, 3)))}))
+    g.node(mesh=g.triangle(attributes={"COLOR_0": g.accessor(
+        np.array([[255, 0, 0, 255]] * 3), ctype=UBYTE, normalized=True)}))
+    white, red = g.load().primitives
+    assert white.colors is None
+    np.testing.assert_allclose(red.colors, [[1, 0, 0, 1]] * 3)
+
+
+def test_draco_primitives_use_the_decoder_interface(monkeypatch):
+    from shadowmap.renderer.gltf.extensions import draco
+
+    calls = []
+
+    def fake(data, attributes):
+        calls.append((bytes(data), dict(attributes)))
+        return {"POSITION": TRI.copy(), "indices": np.array([0, 2, 1], np.uint32)}
+
+    monkeypatch.setattr(draco, "decode_primitive", fake)
+    g = Gltf()
+    g.doc["extensionsUsed"] = g.doc["extensionsRequired"] = ["KHR_draco_mesh_compression"]
+    stream = g.view(b"DRACOxxx")
+    pos = g.accessor(None, kind="VEC3", count=3)
+    colors = g.accessor(np.array([[1, 0, 0, 1]] * 3, np.float32))  # not compressed
+    g.node(mesh=g.mesh({"attributes": {"POSITION": pos, "COLOR_0": colors},
+                        "indices": g.accessor(None, ctype=USHORT, kind="SCALAR", count=3),
+                        "extensions": {"KHR_draco_mesh_compression": {
+                            "bufferView": stream, "attributes": {"POSITION": 0}}}}))
+    prim = g.load().primitives[0]
+    assert calls == [(b"DRACOxxx", {"POSITION": 0})]
+    np.testing.assert_array_equal(prim.positions, TRI)
+    np.testing.assert_array_equal(prim.indices, [[0, 2, 1]])
+    np.testing.assert_allclose(prim.colors, [[1, 0, 0, 1]] * 3)
+
+
+# ------------------------------------------------------------------------------------------------
+# Materials
+# ------------------------------------------------------------------------------------------------
+
+
+def _textured(material: dict, uv0=None, uv1=None, image: bytes | None = None,
+              image_spec: dict | None = None) -> Gltf:
+    g = Gltf()
+    rgba = np.zeros((2, 4, 4), np.uint8)
+    rgba[0] = 255  # top row opaque white, bottom row transparent
+    g.doc["images"] = [image_spec or {"bufferView": g.view(image or png(rgba)),
+                                      "mimeType": "image/png", "name": "cutout"}]
+    g.doc["textures"] = [{"source": 0}]
+    g.doc["materials"] = [{"name": "leaf", **material}]
+    attrs = {}
+    if uv0 is not None:
+        attrs["TEXCOORD_0"] = g.accessor(np.asarray(uv0, np.float32))
+    if uv1 is not None:
+        attrs["TEXCOORD_1"] = g.accessor(np.asarray(uv1, np.float32))
+    g.node(mesh=g.triangle(attributes=attrs, material=0))
+    return g
+
+
+UV0 = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+UV1 = np.array([[0.1, 0.2], [0.3, 0.4], [0.5, 0.6]])
+
+
+def test_base_colour_texture_and_its_texcoord_set():
+    g = _textured({"pbrMetallicRoughness": {"baseColorFactor": [1, 0.5, 0.25, 1],
+                                            "baseColorTexture": {"index": 0, "texCoord": 1}},
+                   "alphaMode": "MASK", "doubleSided": True}, UV0, UV1)
+    prim = g.load().primitives[0]
+    mat = prim.material
+    np.testing.assert_allclose(mat.base_color, [1, 0.5, 0.25, 1])
+    assert mat.texture.shape == (2, 4, 4) and mat.texture.dtype == np.uint8
+    assert mat.texture[0, 0, 3] == 255 and mat.texture[1, 0, 3] == 0  # rows top to bottom
+    assert mat.alpha_mode == "MASK" and mat.alpha_cutoff == 0.5 and mat.double_sided
+    # OpenGL convention: v = 1 - glTF v.
+    np.testing.assert_allclose(prim.uv, np.c_[UV1[:, 0], 1 - UV1[:, 1]], atol=1e-7)
+
+
+def test_texture_transform_is_applied_to_the_uvs():
+    tt = {"offset": [0.5, -0.25], "rotation": math.pi / 2, "scale": [2.0, 3.0]}
+    g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {
+        "index": 0, "texCoord": 1, "extensions": {"KHR_texture_transform": tt}}}}, UV0, UV1)
+    g.doc["extensionsUsed"] = ["KHR_texture_transform"]
+    scene = g.load()
+    assert not scene.warnings
+    # T(offset) R(rotation) S(scale) on (u, v, 1), the extension's rotation [[c, s], [-s, c]].
+    su, sv = UV1[:, 0] * 2.0, UV1[:, 1] * 3.0
+    c, s = math.cos(math.pi / 2), math.sin(math.pi / 2)
+    u, v = c * su + s * sv + 0.5, -s * su + c * sv - 0.25
+    np.testing.assert_allclose(scene.primitives[0].uv, np.c_[u, 1 - v], atol=1e-6)
+
+
+def test_texture_transform_texcoord_overrides_the_texture_info():
+    tt = {"texCoord": 0, "offset": [0.25, 0.0]}
+    g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {
+        "index": 0, "texCoord": 1, "extensions": {"KHR_texture_transform": tt}}}}, UV0, UV1)
+    uv = g.load().primitives[0].uv
+    np.testing.assert_allclose(uv, np.c_[UV0[:, 0] + 0.25, 1 - UV0[:, 1]], atol=1e-7)
+
+
+def test_specular_glossiness_diffuse_is_the_fallback_base_colour():
+    g = Gltf()
+    g.doc["extensionsUsed"] = ["KHR_materials_pbrSpecularGlossiness"]
+    g.doc["materials"] = [
+        {"extensions": {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": [0.2, 0.4,
+                                                                              0.6, 1]}}},
+        {"pbrMetallicRoughness": {"baseColorFactor": [1, 0, 0, 1]},
+         "extensions": {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": [0, 1, 0, 1]}}},
+    ]
+    g.node(mesh=g.triangle(material=0))
+    g.node(mesh=g.triangle(material=1))
+    scene = g.load()
+    sg, mr = scene.primitives
+    np.testing.assert_allclose(sg.material.base_color, [0.2, 0.4, 0.6, 1], atol=1e-7)
+    np.testing.assert_allclose(mr.material.base_color, [1, 0, 0, 1])
+    assert not scene.warnings
+
+
+def test_alpha_cutoff_is_read_exactly():
+    g = Gltf()
+    g.doc["materials"] = [{"alphaMode": "MASK", "alphaCutoff": 0},
+                          {"alphaMode": "MASK"},
+                          {"alphaMode": "MASK", "alphaCutoff": 1.5, "name": "gone"}]
+    for m in range(3):
+        g.node(mesh=g.triangle(material=m))
+    scene = g.load()
+    assert [p.material.alpha_cutoff for p in scene.primitives] == [0.0, 0.5, 1.5]
+    (w,) = scene.warnings
+    assert "material 2 ('gone')" in w and "fully cut out" in w
+
+
+@pytest.mark.parametrize("case, image, spec, reason", [
+    ("undecodable", b"this is not a png", None, "cannot be decoded"),
+    ("bomb", png_header_only(9000, 9000), None, "over the limit"),
+    ("unsafe uri", None, {"uri": "../../etc/secret.png"}, "refusing|outside"),
+    ("missing uri", None, {"uri": "leaf.png"}, "not provided"),
+])
+def test_unusable_textures_are_dropped_with_a_warning(case, image, spec, reason):
+    g = _textured({"pbrMetallicRoughness": {"baseColorFactor": [0, 1, 0, 1],
+                                            "baseColorTexture": {"index": 0}}}, UV0,
+                  image=image, image_spec=spec)
+    scene = g.load()
+    prim = scene.primitives[0]
+    assert prim.material.texture is None and prim.uv is None
+    np.testing.assert_allclose(prim.material.base_color, [0, 1, 0, 1])
+    (w,) = scene.warnings
+    assert w.startswith("image 0") and "material 0 ('leaf')" in w, w
+    assert __import__("re").search(reason, w), w
+
+
+def test_texture_without_its_uv_set_draws_untextured():
+    g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0, "texCoord": 1}}},
+                  UV0)
+    scene = g.load()
+    assert scene.primitives[0].material.texture is None
+    assert any("TEXCOORD_1" in w for w in scene.warnings)
+
+
+# ------------------------------------------------------------------------------------------------
+# Nodes and instancing
+# ------------------------------------------------------------------------------------------------
+
+
+def test_node_cycles_and_two_parents_are_refused():
+    g = Gltf()
+    mesh = g.triangle()
+    g.node(mesh=mesh, children=[1])
+    g.node(root=False, children=[0])
+    with pytest.raises(SceneError, match="cycle"):
+        g.load()
+    g = Gltf()
+    mesh = g.triangle()
+    g.node(children=[2])
+    g.node(children=[2])
+    g.node(root=False, mesh=mesh)
+    with pytest.raises(SceneError, match="node 2 has two parents"):
+        g.load()
+    g = Gltf()
+    g.node(mesh=g.triangle(), children=[0])
+    with pytest.raises(SceneError, match="cycle|two parents"):
+        g.load()
+
+
+def test_deep_hierarchies_need_no_recursion():
+    g = Gltf()
+    mesh = g.triangle()
+    depth = 20_000
+    g.doc["nodes"] = [{"translation": [0, 0.001, 0], "children": [i + 1]} for i in range(depth)]
+    g.doc["nodes"].append({"mesh": mesh})
+    g.doc["scenes"][0]["nodes"] = [0]
+    scene = g.load()
+    np.testing.assert_allclose(scene.instances[0].matrix[:3, 3], [0, depth * 0.001, 0],
+                               rtol=1e-9)
+
+
+def test_default_scene_or_every_root():
+    g = Gltf()
+    mesh = g.triangle()
+    g.node(mesh=mesh)
+    g.node(root=False, mesh=mesh, translation=[5, 0, 0])
+    g.doc["scenes"].append({"nodes": [1]})
+    assert len(g.load().instances) == 1
+    g.doc["scene"] = 1
+    np.testing.assert_allclose(g.load().instances[0].matrix[:3, 3], [5, 0, 0])
+    del g.doc["scene"]  # no default scene: every root node
+    assert len(g.load().instances) == 2
+
+
+def test_matrix_and_trs_and_non_finite_transforms():
+    g = Gltf()
+    mesh = g.triangle()
+    m = np.eye(4)
+    m[:3, 3] = [1, 2, 3]
+    g.node(mesh=mesh, matrix=m.T.ravel().tolist())  # glTF matrices are column-major
+    g.node(mesh=mesh, translation=[0, 0, 1], rotation=[0, 0, math.sin(math.pi / 4),
+                                                       math.cos(math.pi / 4)], scale=[2, 2, 2])
+    a, b = g.load().instances
+    np.testing.assert_allclose(a.matrix, m)
+    np.testing.assert_allclose(b.matrix[:3, :3], [[0, -2, 0], [2, 0, 0], [0, 0, 2]], atol=1e-12)
+    np.testing.assert_allclose(b.bounds, [[-2, 0, 1], [0, 2, 1]], atol=1e-12)
+    g = Gltf()
+    mesh = g.triangle()
+    g.node(translation=[1e308, 0, 0], children=[1])
+    g.node(root=False, mesh=mesh, translation=[1e308, 0, 0])
+    with pytest.raises(SceneError, match="non-finite transform"):
+        g.load()
+
+
+def test_fifty_thousand_instances_load_quickly():
+    g = Gltf()
+    box = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], np.float32)
+    idx = g.accessor(np.array([0, 1, 2, 1, 3, 2, 4, 6, 5, 5, 6, 7], np.uint16), ctype=USHORT)
+    mesh = g.triangle(box, indices=idx)
+    n = 50_000
+    g.doc["nodes"] = [{"mesh": mesh, "translation": [2 * i, 0, 0]} for i in range(n)]
+    g.doc["scenes"][0]["nodes"] = list(range(n))
+    data = g.glb()
+    t = time.perf_counter()
+    scene = load_scene(data)
+    seconds = time.perf_counter() - t
+    assert len(scene.primitives) == 1 and len(scene.instances) == n
+    np.testing.assert_allclose(scene.instances[12345].bounds, [[24690, 0, 0], [24691, 1, 1]])
+    np.testing.assert_allclose(scene.bounds, [[0, 0, 0], [2 * n - 1, 1, 1]])
+    assert seconds < 15, seconds
+
+
+def test_gpu_instancing_makes_one_instance_per_entry():
+    from scipy.spatial.transform import Rotation
+
+    g = Gltf()
+    g.doc["extensionsUsed"] = ["EXT_mesh_gpu_instancing"]
+    t = np.array([[0, 0, 0], [3, 0, 0], [0, 0, 3]], np.float32)
+    r = Rotation.from_euler("xyz", [[0, 0, 0], [0, 90, 0], [30, 0, 45]], degrees=True)
+    s = np.array([[1, 1, 1], [2, 2, 2], [1, 0.5, 3]], np.float32)
+    ext = {"attributes": {"TRANSLATION": g.accessor(t),
+                          "ROTATION": g.accessor(r.as_quat().astype(np.float32)),
+                          "SCALE": g.accessor(s)}}
+    g.node(mesh=g.triangle(), translation=[0, 10, 0], extensions={"EXT_mesh_gpu_instancing": ext})
+    scene = g.load()
+    assert len(scene.instances) == 3 and len(scene.primitives) == 1 and not scene.warnings
+    node = np.eye(4)
+    node[1, 3] = 10
+    for k, inst in enumerate(scene.instances):
+        local = np.eye(4)
+        local[:3, :3] = r[k].as_matrix() @ np.diag(s[k])
+        local[:3, 3] = t[k]
+        np.testing.assert_allclose(inst.matrix, node @ local, atol=1e-6)
+        # Bounds: the local box's 8 corners under the instance matrix.
+        box = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 0)])
+        w = box @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
+        np.testing.assert_allclose(inst.bounds, [w.min(0), w.max(0)], atol=1e-6)
+
+
+def test_instancing_counts_towards_the_triangle_precheck():
+    g = Gltf()
+    ext = {"attributes": {"TRANSLATION": g.accessor(np.zeros((1000, 3)))}}
+    g.node(mesh=g.triangle(), extensions={"EXT_mesh_gpu_instancing": ext})
+    with pytest.raises(LimitError) as info:
+        g.load(limits=Limits(max_triangles=999))
+    assert info.value.limit == "max_triangles"
+    assert g.load(limits=Limits(max_triangles=1000)).triangle_count == 1000
+
+
+def test_cast_and_receive_shadow_extras_on_node_or_mesh():
+    g = Gltf()
+    mesh = g.triangle(extras=None)
+    g.doc["meshes"][mesh]["extras"] = {"castShadow": False}
+    g.node(mesh=mesh)
+    g.node(mesh=mesh, extras={"castShadow": True, "receiveShadow": False})
+    a, b = g.load().instances
+    assert (a.cast_shadow, a.receive_shadow) == (False, True)
+    assert (b.cast_shadow, b.receive_shadow) == (True, False)
+
+
+def test_cameras_and_lights_with_their_node_transforms():
+    g = one_triangle()
+    g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}},
+                        {"type": "orthographic", "orthographic": {"xmag": 1, "ymag": 1,
+                                                                  "znear": 0, "zfar": 1}}]
+    g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "point", "range": 4}]}}
+    g.node(children=[2], translation=[0, 0, 5], scale=[3, 3, 3])
+    g.node(root=False, camera=0, extensions={"KHR_lights_punctual": {"light": 0}})
+    g.node(camera=1)
+    g.node(camera=9)  # no such camera: costs the camera, not the scene
+    scene = g.load()
+    (cam,) = scene.cameras
+    np.testing.assert_allclose(cam.pose, [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]])
+    assert cam.yfov == 0.8 and cam.znear == 0.1 and cam.zfar is None
+    (light,) = scene.lights
+    assert light.type == "point" and light.range == 4
+    np.testing.assert_allclose(light.pose[:3, 3], [0, 0, 5])
+    assert any("orthographic" in w for w in scene.warnings)
+    assert any("camera 9 does not exist" in w for w in scene.warnings)
+
+
+# ------------------------------------------------------------------------------------------------
+# Skins and morph targets
+# ------------------------------------------------------------------------------------------------
+
+
+def _skin_01():
+    models = models_dir()
+    doc = json.loads((models / "Animation_Skin_01.gltf").read_text())
+    blob = (models / "Animation_Skin_01.bin").read_bytes()
+    scene = load_scene(models / "Animation_Skin_01.gltf",
+                       resources={"Animation_Skin_01.bin": blob})
+    return doc, blob, scene
+
+
+def _raw(doc: dict, blob: bytes, accessor: int, dtype: str, width: int) -> np.ndarray:
+    acc = doc["accessors"][accessor]
+    view = doc["bufferViews"][acc["bufferView"]]
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    return np.frombuffer(blob, dtype, acc["count"] * width, start).reshape(acc["count"], width)
+
+
+def test_skin_in_the_stored_pose_matches_a_hand_computation():
+    """Animation_Skin_01: joint nodes store a pose unlike the bind pose."""
+    from scipy.spatial.transform import Rotation
+
+    doc, blob, scene = _skin_01()
+    assert not scene.warnings
+    (prim,) = scene.primitives
+    (inst,) = scene.instances
+    np.testing.assert_array_equal(inst.matrix, np.eye(4))  # positions are world-space
+    attrs = doc["meshes"][0]["primitives"][0]["attributes"]
+    raw = _raw(doc, blob, attrs["POSITION"], "<f4", 3).astype(np.float64)
+    weights = _raw(doc, blob, attrs["WEIGHTS_0"], "<f4", 4).astype(np.float64)
+    joints = _raw(doc, blob, attrs["JOINTS_0"], "<u2", 4)
+    ibm = _raw(doc, blob, doc["skins"][0]["inverseBindMatrices"], "<f4", 16)
+    ibm = ibm.reshape(-1, 4, 4).transpose(0, 2, 1)  # column-major in the file
+
+    def local(node):
+        m = np.eye(4)
+        m[:3, :3] = Rotation.from_quat(node.get("rotation", [0, 0, 0, 1])).as_matrix()
+        m[:3, 3] = node.get("translation", [0, 0, 0])
+        return m
+
+    j0 = local(doc["nodes"][1])
+    j1 = j0 @ local(doc["nodes"][2])
+    jm = [j0 @ ibm[0], j1 @ ibm[1]]
+    expected = []
+    for v, w, j in zip(raw, weights, joints, strict=True):
+        m = sum(wk * jm[jk] for wk, jk in zip(w, j, strict=True) if wk)
+        expected.append((m @ np.r_[v, 1])[:3])
+    expected = np.array(expected)
+    # Every file vertex is kept, in order (the indices use them all).
+    np.testing.assert_allclose(prim.positions, expected, atol=1e-6)
+    assert np.abs(prim.positions - raw).max() > 0.05  # skinning moved them
+    tri = prim.positions[prim.indices].astype(np.float64)
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all(np.linalg.norm(fn, axis=1) > 1e-6)
+
+
+def test_skinned_normals_use_the_inverse_transpose():
+    g = Gltf()
+    nrm = np.tile(np.array([1, 1, 0], np.float32) / np.sqrt(2), (3, 1))
+    joints = g.accessor(np.array([[0, 1, 0, 0]] * 3), ctype=UBYTE)
+    weights = g.accessor(np.array([[1, 0, 0, 0], [0.5, 0.5, 0, 0], [2, 0, 0, 0]], np.float32))
+    mesh = g.triangle(attributes={"NORMAL": g.accessor(nrm), "JOINTS_0": joints,
+                                  "WEIGHTS_0": weights})
+    g.doc["skins"] = [{"joints": [1, 2]}]  # no inverseBindMatrices: identity
+    g.node(mesh=mesh, skin=0, translation=[100, 0, 0])  # ignored, per the spec
+    g.node(scale=[2, 1, 1])
+    g.node(translation=[0, 1, 0])
+    scene = g.load()
+    prim = scene.primitives[0]
+    np.testing.assert_array_equal(scene.instances[0].matrix, np.eye(4))
+    # v0: joint 0 (scale x2); v1: half each; v2: weight 2 normalized to 1, joint 0.
+    np.testing.assert_allclose(prim.positions, [[0, 0, 0], [1.5, 0.5, 0], [0, 1, 0]], atol=1e-6)
+    n0 = np.array([0.5, 1, 0]) / np.linalg.norm([0.5, 1, 0])
+    np.testing.assert_allclose(prim.normals[0], n0, atol=1e-6)
+    np.testing.assert_allclose(prim.normals[2], n0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["CesiumMan.glb", "Fox.glb"])
+def test_real_figures_load_without_warnings(models, name):
+    scene = load_scene(models / name)
+    assert scene.warnings == []
+    lo, hi = scene.bounds
+    assert np.all(np.isfinite(scene.bounds)) and 0.5 < np.max(hi - lo) < 10
+    if name == "Fox.glb":
+        # The fox's stored pose is its bind pose: skinned, its vertices are the file's bind
+        # positions (the accessor's min/max), not those positions under the node's 0.0254 scale.
+        doc, _ = split_glb((models / name).read_bytes())
+        acc = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+        fox = next(i for i in scene.instances if i.name == "fox1")
+        np.testing.assert_allclose(fox.bounds, [acc["min"], acc["max"]], atol=1e-3)
+
+
+def test_morph_targets_at_their_default_weights():
+    g = Gltf()
+    up = g.accessor(np.tile(np.array([0, 0, 1], np.float32), (3, 1)))
+    sparse = {"count": 1, "indices": {"bufferView": g.view(np.array([2], np.uint8).tobytes()),
+                                      "componentType": UBYTE},
+              "values": {"bufferView": g.view(np.array([[1, 0, 0]], np.float32).tobytes())}}
+    side = g.accessor(None, kind="VEC3", count=3, sparse=sparse)
+    dn = g.accessor(np.tile(np.array([1, 0, -1], np.float32), (3, 1)))
+    nrm = g.accessor(np.tile(np.array([0, 0, 1], np.float32), (3, 1)))
+    mesh = g.triangle(attributes={"NORMAL": nrm},
+                      targets=[{"POSITION": up, "NORMAL": dn}, {"POSITION": side}],
+                      )
+    g.doc["meshes"][mesh]["weights"] = [0.5, 1.0]
+    g.node(mesh=mesh)
+    g.node(mesh=mesh, weights=[1.0, 0.0])
+    a, b = g.load().primitives
+    np.testing.assert_allclose(a.positions, TRI + [[0, 0, 0.5], [0, 0, 0.5], [1, 0, 0.5]])
+    np.testing.assert_allclose(b.positions, TRI + [0, 0, 1])
+    np.testing.assert_allclose(b.normals, [[1, 0, 0]] * 3, atol=1e-7)
+    np.testing.assert_allclose(a.normals, [[1, 0, 1] / np.sqrt(2)] * 3, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------
+# Extensions and limits
+# ------------------------------------------------------------------------------------------------
+
+
+def test_supported_extensions_are_listed():
+    for name in ("KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_mesh_quantization",
+                 "KHR_texture_transform", "EXT_mesh_gpu_instancing", "KHR_lights_punctual",
+                 "KHR_materials_pbrSpecularGlossiness", "KHR_materials_emissive_strength"):
+        assert name in SUPPORTED and SUPPORTED[name]
+    # Extensions whose absence would change shadows are not "ignorable".
+    for name in ("KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_unlit",
+                 "KHR_texture_basisu"):
+        assert name not in SUPPORTED and name not in IGNORED
+
+
+def test_unsupported_required_extensions_are_refused():
+    import shadowmap
+
+    g = one_triangle()
+    g.doc["extensionsUsed"] = ["KHR_texture_transform", "EXT_future", "KHR_materials_transmission"]
+    g.doc["extensionsRequired"] = ["EXT_future", "KHR_texture_transform",
+                                   "KHR_materials_transmission"]
+    with pytest.raises(UnsupportedExtension) as info:
+        g.load()
+    assert info.value.extensions == ["EXT_future", "KHR_materials_transmission"]
+    assert "EXT_future" in str(info.value) and "KHR_materials_transmission" in str(info.value)
+    assert isinstance(info.value, SceneError)
+    assert shadowmap.UnsupportedExtension is UnsupportedExtension
+
+
+def test_unknown_optional_extensions_are_ignored_with_a_warning():
+    g = one_triangle()
+    g.doc["extensionsUsed"] = ["EXT_future", "KHR_materials_emissive_strength"]
+    scene = g.load()
+    assert scene.warnings == ["ignored optional extension EXT_future"]
+    assert scene.with_ground().warnings == scene.warnings
+
+
+def test_triangle_limit_is_checked_before_any_data_is_read():
+    """The declared counts are over the limit: refused as a limit even though the buffer the
+    accessors read is missing (so nothing was decoded)."""
+    g = one_triangle()
+    doc, _ = split_glb(g.glb())
+    doc["accessors"].append({"bufferView": 0, "componentType": UINT, "count": 3_000_000,
+                             "type": "SCALAR"})
+    doc["meshes"][0]["primitives"][0]["indices"] = 1
+    doc["buffers"][0]["uri"] = "missing.bin"
+    text = json.dumps(doc).encode()
+    with pytest.raises(LimitError) as info:
+        load_scene(text, limits=Limits(max_triangles=10_000))
+    assert info.value.limit == "max_triangles" and "1000000 triangles" in str(info.value)
+    with pytest.raises(SceneError, match="not provided"):
+        load_scene(text)
+
+
+def test_malformed_documents_stay_scene_errors():
+    for edit in (lambda d: d.update(nodes=5), lambda d: d.update(meshes=[{"primitives": 3}]),
+                 lambda d: d["accessors"][0].update(count="many"),
+                 lambda d: d["accessors"][0].update(componentType=5124),
+                 lambda d: d["nodes"][0].update(mesh=7),
+                 lambda d: d["nodes"][0].update(translation=[1, 2]),
+                 lambda d: d["meshes"][0]["primitives"][0].update(attributes=[])):
+        g = one_triangle()
+        doc, blob = split_glb(g.glb())
+        edit(doc)
+        with pytest.raises(SceneError):
+            load_scene(make_glb(doc, blob))
+
+
+# ------------------------------------------------------------------------------------------------
+# The model corpus
+# ------------------------------------------------------------------------------------------------
+
+CORPUS = sorted(p.name for p in models_dir().iterdir() if p.suffix in (".glb", ".gltf"))
+#: Files trimesh's loader reads right (no skin, Draco, meshopt or instancing): the oracle.
+TRIMESH_AGREES = ["AlphaBlendModeTest.glb", "BoxTextured.glb", "CesiumMan.glb",
+                  "CesiumMilkTruck.glb", "Duck.glb", "TestScene.gltf", "TwoCubes.glb", "cube.glb"]
+#: Independent expectations for the others: triangles and world bounds.
+EXPECTED = {
+    "BoxDraco.gltf": (12, [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]),
+    "BoxMeshopt.glb": (12, [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]),
+    "Animation_Skin_01.gltf": (4, None),
+    "Fox.glb": (None, None),
+}
+
+
+def _resources(models: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in models.iterdir() if p.suffix == ".bin"}
+
+
+@pytest.mark.parametrize("name", CORPUS)
+def test_every_model_loads(models, name):
+    scene = load_scene(models / name, resources=_resources(models))
+    assert scene.triangle_count > 0
+    assert np.all(np.isfinite(scene.bounds)) and np.all(scene.bounds[1] > scene.bounds[0])
+    for prim in scene.primitives:
+        assert prim.normals.shape == prim.positions.shape
+        np.testing.assert_allclose(np.linalg.norm(prim.normals, axis=1), 1.0, atol=1e-3)
+        assert prim.indices.max() < len(prim.positions)
+        assert (prim.uv is None) == (prim.material.texture is None)
+    if name in EXPECTED:
+        triangles, bounds = EXPECTED[name]
+        if triangles is not None:
+            assert scene.triangle_count == triangles
+        if bounds is not None:
+            np.testing.assert_allclose(scene.bounds, bounds, atol=1e-3)
+    extra = ["ignored optional extension KHR_materials_common"] if name == "TestScene.gltf" else []
+    assert scene.warnings == extra
+
+
+def _sorted_rows(a: np.ndarray) -> np.ndarray:
+    a = np.round(a.reshape(len(a), -1), 4) + 0.0  # + 0.0: -0.0 sorts as 0.0
+    return a[np.lexsort(a.T[::-1])]
+
+
+@pytest.mark.parametrize("name", TRIMESH_AGREES)
+def test_geometry_matches_trimesh(models, name):
+    import trimesh
+
+    res = _resources(models)
+    scene = load_scene(models / name, resources=res)
+    tm = trimesh.load(str(models / name), force="scene", process=False,
+                      resolver=MappingResolver(res))
+    theirs, mats, boxes = [], [], []
+    for node in tm.graph.nodes_geometry:
+        matrix, geom = tm.graph[node]
+        mesh = tm.geometry[geom]
+        v = np.asarray(mesh.vertices) @ matrix[:3, :3].T + matrix[:3, 3]
+        theirs.append(v[mesh.faces])
+        mats.append(np.asarray(matrix))
+        corners = trimesh.bounds.corners(mesh.bounds) @ matrix[:3, :3].T + matrix[:3, 3]
+        boxes.append([corners.min(axis=0), corners.max(axis=0)])
+        # Same vertices in the same order (where every vertex is used): same attributes.
+        ours = [p for p in scene.primitives if len(p.positions) == len(mesh.vertices)
+                and np.allclose(p.positions, mesh.vertices, atol=1e-6)]
+        assert ours, (name, geom)
+        p = ours[0]
+        np.testing.assert_array_equal(p.indices, mesh.faces)
+        uv = getattr(mesh.visual, "uv", None)
+        if p.uv is not None:
+            np.testing.assert_allclose(p.uv, uv, atol=1e-6)  # trimesh flips v too
+    ours_tri = np.concatenate([scene.world_triangles(i) for i in scene.instances])
+    theirs_tri = np.concatenate(theirs)
+    assert ours_tri.shape == theirs_tri.shape
+    np.testing.assert_allclose(_sorted_rows(ours_tri), _sorted_rows(theirs_tri), atol=2e-4)
+    np.testing.assert_allclose(_sorted_rows(np.stack([i.matrix for i in scene.instances])),
+                               _sorted_rows(np.stack(mats)), atol=1e-4)
+    # Instances are bounded by their local box's corners under the instance matrix.
+    np.testing.assert_allclose(scene.bounds, [np.min(boxes, axis=0)[0], np.max(boxes, axis=0)[1]],
+                               atol=1e-4)
+
+
+# ------------------------------------------------------------------------------------------------
+# End to end (GL)
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("name", ["BoxTextured.glb", "CesiumMilkTruck.glb",
+                                  "Animation_Skin_01.gltf"])
+def test_loaded_models_cast_the_reference_shadows(renderer, models, name):
+    from shadowmap.renderer import testing as T
+
+    scene = load_scene(models / name, resources=_resources(models)).with_ground()
+    params = RenderParams(lights=[{"type": "directional", "direction": [-0.5, -1.0, 0.2]}])
+    m = T.measure(renderer, scene, params).metrics[0]
+    assert m.pixels > 10_000
+    assert m.iou >= 0.97, (name, m)
