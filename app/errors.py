@@ -6,7 +6,9 @@ The library's exceptions are mapped here, in one place, so routes never build er
 exception                    status  ``error``
 ===========================  ======  ===========================================
 :class:`ServiceError`        varies  set by the raiser (e.g. ``queue_full``)
-``SceneError``               400     ``invalid_scene``
+``UnsupportedExtension``     422     ``unsupported_extension`` (plus ``extensions``)
+``UnsupportedVersion``       422     ``unsupported_version`` (plus ``field``)
+``SceneError`` (any other)   400     ``invalid_scene``
 ``RequestError``             422     ``invalid_request``
 ``LimitError``               422     ``limit_exceeded`` (plus ``limit``)
 pydantic ``ValidationError`` 422     ``invalid_params`` (plus ``errors``)
@@ -34,6 +36,8 @@ from shadowmap.renderer import (
     RequestError,
     SceneError,
     ShadowMapError,
+    UnsupportedExtension,
+    UnsupportedVersion,
 )
 
 log = logging.getLogger("shadowmap.app")
@@ -46,6 +50,8 @@ class ErrorBody(BaseModel):
     detail: str
     limit: str | None = None
     errors: list[dict[str, Any]] | None = None
+    extensions: list[str] | None = None
+    field: str | None = None
 
 
 class ServiceError(Exception):
@@ -76,13 +82,15 @@ class ServiceError(Exception):
 
 def error_response(status: int, error: str, detail: str, *, limit: str | None = None,
                    errors: list[dict] | None = None,
-                   headers: dict[str, str] | None = None) -> JSONResponse:
-    """A JSON error response with the common shape."""
+                   headers: dict[str, str] | None = None,
+                   **extra: Any) -> JSONResponse:
+    """A JSON error response with the common shape; ``extra`` adds fields of :class:`ErrorBody`."""
     body: dict[str, Any] = {"error": error, "detail": detail}
     if limit is not None:
         body["limit"] = limit
     if errors is not None:
         body["errors"] = errors
+    body.update(extra)
     return JSONResponse(body, status_code=status, headers=headers)
 
 
@@ -112,6 +120,15 @@ def install_handlers(app: FastAPI) -> None:
     async def _service(request: Request, exc: ServiceError) -> JSONResponse:
         return error_response(exc.status, exc.error, exc.detail, limit=exc.limit,
                               headers=exc.headers)
+
+    # Registered before SceneError: Starlette picks the handler of the closest class in the MRO.
+    @app.exception_handler(UnsupportedExtension)
+    async def _extension(request: Request, exc: UnsupportedExtension) -> JSONResponse:
+        return error_response(422, "unsupported_extension", str(exc), extensions=exc.extensions)
+
+    @app.exception_handler(UnsupportedVersion)
+    async def _version(request: Request, exc: UnsupportedVersion) -> JSONResponse:
+        return error_response(422, "unsupported_version", str(exc), field=exc.field)
 
     @app.exception_handler(SceneError)
     async def _scene(request: Request, exc: SceneError) -> JSONResponse:

@@ -21,6 +21,7 @@ from .errors import (
     ShaderError,
     ShadowMapError,
     UnsupportedExtension,
+    UnsupportedVersion,
 )
 from .limits import Limits
 from .params import RenderParams
@@ -41,5 +42,6 @@ __all__ = [
     "ShaderError",
     "ShadowMapError",
     "UnsupportedExtension",
+    "UnsupportedVersion",
     "load_scene",
 ]

@@ -31,6 +31,20 @@ class UnsupportedExtension(SceneError):
             + ", ".join(self.extensions)))
 
 
+class UnsupportedVersion(SceneError):
+    """The file is well-formed glTF of a version this loader does not read.
+
+    Attributes
+    ----------
+    field : str
+        ``"asset.version"`` (major version not 2) or ``"asset.minVersion"`` (newer than 2.0).
+    """
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(message)
+        self.field = field
+
+
 class RequestError(ShadowMapError, ValueError):
     """The request is well-formed but impossible (e.g. a spot light with no direction)."""
 

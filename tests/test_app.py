@@ -539,6 +539,23 @@ def test_bad_scene(client, case):
     assert_error(post_scene(client, name, data, SMALL), 400, "invalid_scene")
 
 
+@pytest.mark.parametrize("asset, extra, error, key, value", [
+    ({"version": "2.0"}, {"extensionsUsed": ["KHR_fake", "EXT_other"],
+                          "extensionsRequired": ["KHR_fake", "EXT_other"]},
+     "unsupported_extension", "extensions", ["KHR_fake", "EXT_other"]),
+    ({"version": "2.0", "minVersion": "2.1"}, {}, "unsupported_version", "field",
+     "asset.minVersion"),
+    ({"version": "3.0"}, {}, "unsupported_version", "field", "asset.version"),
+])
+def test_unsupported_gltf_is_422_naming_what(client, asset, extra, error, key, value):
+    doc = json.loads(embedded_gltf())
+    doc["asset"] = asset
+    doc.update(extra)
+    body = assert_error(post_scene(client, "scene.gltf", json.dumps(doc).encode(), SMALL), 422,
+                        error)
+    assert body[key] == value
+
+
 def test_uri_http_is_never_fetched(client):
     """A buffer URI naming a live local HTTP port: refused, and nothing connects to it."""
     with socket.socket() as listener:

@@ -202,6 +202,21 @@ def test_asset_is_checked(asset, message):
         g.load()
 
 
+@pytest.mark.parametrize("asset, field", [
+    ({"version": "3.0"}, "asset.version"),
+    ({"version": "1.0"}, "asset.version"),
+    ({"version": "2.0", "minVersion": "2.1"}, "asset.minVersion"),
+])
+def test_unsupported_versions_name_the_field(asset, field):
+    from shadowmap.renderer import UnsupportedVersion
+
+    g = one_triangle()
+    g.doc["asset"] = asset
+    with pytest.raises(UnsupportedVersion) as info:
+        g.load()
+    assert info.value.field == field
+
+
 def test_newer_minor_versions_load():
     g = one_triangle()
     g.doc["asset"] = {"version": "2.7", "minVersion": "2.0"}

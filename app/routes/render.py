@@ -57,7 +57,9 @@ RESPONSES: dict = {
     406: {"model": ErrorBody, "description": "no acceptable response format"},
     413: {"model": ErrorBody, "description": "upload (or unpacked zip) over the limit"},
     415: {"model": ErrorBody, "description": "unsupported request body type"},
-    422: {"model": ErrorBody, "description": "params invalid or impossible, or over a limit"},
+    422: {"model": ErrorBody, "description": "params invalid or impossible, over a limit, or a "
+          "scene that needs a glTF extension (`unsupported_extension`, listed in `extensions`) or "
+          "version (`unsupported_version`, `field`) this renderer does not implement"},
     500: {"model": ErrorBody, "description": "OpenGL failure"},
     503: {"model": ErrorBody, "description": "queue full or renderer down (see Retry-After)"},
     504: {"model": ErrorBody, "description": "the render ran past the time limit"},

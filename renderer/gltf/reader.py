@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 from urllib.parse import unquote_to_bytes
 
-from ..errors import SceneError, UnsupportedExtension
+from ..errors import SceneError, UnsupportedExtension, UnsupportedVersion
 
 GLB_MAGIC = b"glTF"
 JSON_CHUNK = 0x4E4F534A
@@ -168,16 +168,19 @@ def check_asset(doc: dict[str, Any]) -> None:
         raise SceneError("not a glTF 2.0 file: 'asset' is not an object")
     version = asset.get("version")
     match = _VERSION.match(version) if isinstance(version, str) else None
-    if match is None or int(match.group(1)) != 2:
-        raise SceneError(f"asset.version: glTF version {version!r} is not supported (only 2.x)")
+    if match is None:
+        raise SceneError(f"asset.version {version!r} is not a version like '2.0'")
+    if int(match.group(1)) != 2:
+        raise UnsupportedVersion("asset.version", f"asset.version: glTF version {version!r} is "
+                                 "not supported (only 2.x)")
     if "minVersion" in asset:
         min_version = asset["minVersion"]
         m = _VERSION.match(min_version) if isinstance(min_version, str) else None
         if m is None:
             raise SceneError(f"asset.minVersion {min_version!r} is not a version like '2.0'")
         if (int(m.group(1)), int(m.group(2))) > SUPPORTED_VERSION:
-            raise SceneError(f"asset.minVersion {min_version!r}: the file needs a newer glTF "
-                             "loader than this one (2.0)")
+            raise UnsupportedVersion("asset.minVersion", f"asset.minVersion {min_version!r}: the "
+                                     "file needs a newer glTF loader than this one (2.0)")
 
 
 def decode_data_uri(uri: str, what: str) -> bytes:

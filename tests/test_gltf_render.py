@@ -1,0 +1,112 @@
+"""glTF details that change the picture, rendered: triangle fans and alpha cut-offs, in both the
+light pass and the camera pass."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shadowmap.renderer import RenderParams, load_scene
+from test_gltf import USHORT, Gltf, png
+
+pytestmark = pytest.mark.gl
+
+# A hexagon in the y = 1 plane, seen from above, over a ground square at y = 0.
+HEXAGON = np.array([[0, 1, 0]] + [[np.cos(a), 1, np.sin(a)] for a in
+                                  np.linspace(0, 2 * np.pi, 7)[:-1]], np.float32)
+# The fan (0, 1, 2, ..., 6, 1) as a triangle list, and its winding: counter-clockwise from above.
+FAN = [0, *range(6, 0, -1), 6]
+GROUND = np.array([[-3, 0, -3], [-3, 0, 3], [3, 0, 3], [3, 0, -3]], np.float32)
+VIEW = {"width": 160, "height": 120, "camera": {"eye": [0.5, 6, 0.8], "target": [0, 0, 0]},
+        "lights": [{"type": "directional", "direction": [0.3, -1, 0.2]}],
+        "outputs": ["depth", "visibility"], "shadows": {"filter": "hard"}}
+
+
+def _scene_with(surface: dict, g: Gltf) -> bytes:
+    g.node(mesh=g.mesh(surface))
+    ground = g.accessor(np.array([0, 1, 2, 0, 2, 3]), ctype=USHORT)
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(GROUND)}, "indices": ground}))
+    return g.glb()
+
+
+def _fan(indexed: bool) -> bytes:
+    g = Gltf()
+    if indexed:
+        pos = g.accessor(HEXAGON[::-1].copy())  # stored backwards, indexed forwards again
+        order = np.array([6 - i for i in FAN], np.uint16)
+        surface = {"attributes": {"POSITION": pos}, "indices": g.accessor(order, ctype=USHORT),
+                   "mode": 6}
+    else:
+        surface = {"attributes": {"POSITION": g.accessor(HEXAGON[FAN])}, "mode": 6}
+    return _scene_with(surface, g)
+
+
+def _triangles() -> bytes:
+    g = Gltf()
+    tris = np.array([[FAN[0], FAN[i], FAN[i + 1]] for i in range(1, len(FAN) - 1)]).reshape(-1)
+    surface = {"attributes": {"POSITION": g.accessor(HEXAGON)},
+               "indices": g.accessor(tris.astype(np.uint16), ctype=USHORT)}
+    return _scene_with(surface, g)
+
+
+@pytest.mark.parametrize("indexed", [False, True])
+def test_fans_draw_and_cast_like_the_same_triangles(renderer, indexed):
+    params = RenderParams.model_validate(VIEW)
+    fan = renderer.render(load_scene(_fan(indexed)), params)
+    plain = renderer.render(load_scene(_triangles()), params)
+    assert np.isfinite(fan.depth).sum() > 1000
+    np.testing.assert_array_equal(np.isfinite(fan.depth), np.isfinite(plain.depth))
+    np.testing.assert_allclose(fan.depth, plain.depth, rtol=1e-6)  # NaN where both are empty
+    shadowed = fan.visibility[..., 0] < 0.5
+    assert shadowed.sum() > 200  # the hexagon's shadow on the ground
+    np.testing.assert_array_equal(fan.visibility, plain.visibility)
+
+
+def _cut_out_quad(cutoff: float | None) -> bytes:
+    """A quad textured with alpha rising from 0 (left) to 1 (right), alphaMode MASK, over the
+    ground; the sampler's wrap leaves the last half texel on each side blended."""
+    g = Gltf()
+    alpha = np.repeat(np.linspace(0, 255, 64).round()[None, :], 8, axis=0)
+    rgba = np.dstack([np.full_like(alpha, 200)] * 3 + [alpha])
+    g.doc["images"] = [{"bufferView": g.view(png(rgba)), "mimeType": "image/png"}]
+    g.doc["textures"] = [{"source": 0}]
+    material: dict = {"alphaMode": "MASK", "doubleSided": True,
+                      "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}
+    if cutoff is not None:
+        material["alphaCutoff"] = cutoff
+    g.doc["materials"] = [material]
+    quad = np.array([[-1, 1, -1], [-1, 1, 1], [1, 1, 1], [1, 1, -1]], np.float32)
+    uv = np.array([[0, 0], [0, 1], [1, 1], [1, 0]], np.float32)
+    surface = {"attributes": {"POSITION": g.accessor(quad), "TEXCOORD_0": g.accessor(uv)},
+               "indices": g.accessor(np.array([0, 1, 2, 0, 2, 3]), ctype=USHORT),
+               "material": 0}
+    return _scene_with(surface, g)
+
+
+def test_alpha_cutoff_is_exact_in_both_passes(renderer):
+    # An oblique light: the quad's shadow falls mostly beside it, where the camera sees it.
+    params = RenderParams.model_validate({**VIEW, "lights": [{"direction": [1.5, -1, 0]}]})
+    kept, shadow, warnings = {}, {}, {}
+    ground_only = load_scene(_cut_out_quad(2.0))
+    base = renderer.render(ground_only, params)
+    ground_px = np.isfinite(base.depth).sum()
+    for cutoff in (0.0, None, 0.5, 1.0, 1.5):
+        r = renderer.render(load_scene(_cut_out_quad(cutoff)), params)
+        # Pixels where the quad is drawn: nearer to the camera than the ground at y = 0.
+        quad = np.isfinite(r.depth) & (r.depth < base.depth - 0.5)
+        kept[cutoff] = int(quad.sum())
+        shadow[cutoff] = int((r.visibility[..., 0] < 0.5).sum())
+        warnings[cutoff] = r.warnings
+    full = kept[0.0]
+    assert full > 1500 and np.isfinite(base.depth).sum() == ground_px
+    # 0 keeps every texel; the default is 0.5 (half the gradient); 1 keeps only opaque texels.
+    assert kept[None] == kept[0.5]
+    assert 0.4 * full < kept[0.5] < 0.6 * full
+    assert kept[1.0] < 0.05 * full
+    # Above 1 nothing is left: an empty picture is the right answer, and a warning says so.
+    assert kept[1.5] == 0 and shadow[1.5] == 0
+    assert any("fully cut out" in w for w in warnings[1.5])
+    assert not any("fully cut out" in w for w in warnings[0.5])
+    # The light pass cuts the same texels out: the shadow shrinks with the kept part.
+    assert shadow[0.0] > shadow[0.5] > shadow[1.0]
+    assert shadow[None] == shadow[0.5] and shadow[1.0] < 0.1 * shadow[0.0]
