@@ -1105,3 +1105,11 @@ def test_loaded_models_cast_the_reference_shadows(renderer, models, name):
     m = T.measure(renderer, scene, params).metrics[0]
     assert m.pixels > 10_000
     assert m.iou >= 0.97, (name, m)
+
+
+def test_readme_lists_every_supported_extension():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("### glTF support", 1)[1].split("\n## ", 1)[0]
+    for name in SUPPORTED:
+        short = "_" + name.split("_materials_")[1] if "_materials_" in name else name
+        assert f"`{name}`" in section or f"`{short}`" in section, name
