@@ -12,6 +12,8 @@ platform.
 from __future__ import annotations
 
 import time
+import weakref
+from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -142,6 +144,9 @@ class Renderer:
         #: GPU uploads by the scene's key (freed when evicted).
         self.uploads: BoundedCache[GpuScene] = BoundedCache(
             cache_entries, cache_bytes, size=lambda g: g.nbytes, on_evict=lambda g: g.release())
+        #: Each source scene's :meth:`Scene.with_ground`, by the source object (see
+        #: :meth:`_with_ground`), so that the per-scene arrays of a grounded scene are reused.
+        self._grounded: OrderedDict[int, tuple[weakref.ref[Scene], tuple, Scene]] = OrderedDict()
         self._closed = False
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -153,6 +158,7 @@ class Renderer:
         self._closed = True
         try:
             self.context.make_current()
+            self._grounded.clear()
             self.uploads.clear()
             self.light_pass.release()
             self.camera_pass.release()
@@ -207,6 +213,30 @@ class Renderer:
             data, file_type=file_type, resources=resources, limits=self.limits, key=key))
         return scene
 
+    def _with_ground(self, scene: Scene) -> Scene:
+        """``scene.with_ground()``, the same object again for the same source scene.
+
+        A new :class:`Scene` per request would miss every per-scene cache (the plan's instance
+        arrays, :func:`~shadowmap.renderer.scene.instance_arrays`). The entry is kept while the
+        source scene lives and holds the same lists, key and focus (the grounded scene shares
+        its cameras and lights lists), for up to ``cache_entries`` source scenes.
+        """
+        if self.cache_entries <= 0:
+            return scene.with_ground()
+        state = _ground_state(scene)
+        hit = self._grounded.get(id(scene))
+        if hit is not None and hit[0]() is scene and _same_state(hit[1], state):
+            self._grounded.move_to_end(id(scene))
+            return hit[2]
+        grounded = scene.with_ground()
+        for k in [k for k, v in self._grounded.items() if v[0]() is None]:
+            del self._grounded[k]  # their scenes are gone (an id may be reused)
+        self._grounded[id(scene)] = (weakref.ref(scene), state, grounded)
+        self._grounded.move_to_end(id(scene))
+        while len(self._grounded) > self.cache_entries:
+            self._grounded.popitem(last=False)
+        return grounded
+
     def _upload(self, scene: Scene) -> tuple[GpuScene, bool, bool]:
         """The scene's upload, from the cache when the same content came before.
 
@@ -250,7 +280,7 @@ class Renderer:
         # and a cached scene's list must not grow with every render.
         warnings = list(scene.warnings)
         if params.ground:
-            scene = scene.with_ground()
+            scene = self._with_ground(scene)
         timings["load"] = time.perf_counter() - t0
         check_scene(scene, self.limits, params)
         warnings += request_warnings(params, scene, self.limits)
@@ -355,6 +385,17 @@ class Renderer:
             d["reference_seconds"] = round(ref.seconds, 4)
             out.append(d)
         return out
+
+
+def _ground_state(scene: Scene) -> tuple[tuple, tuple]:
+    """What :meth:`Scene.with_ground` reads of a scene: (objects, compared by identity; values,
+    compared by equality)."""
+    return ((scene.instances, scene.primitives, scene.cameras, scene.lights, scene.focus),
+            (len(scene.instances), len(scene.primitives), scene.key))
+
+
+def _same_state(a: tuple[tuple, tuple], b: tuple[tuple, tuple]) -> bool:
+    return all(x is y for x, y in zip(a[0], b[0], strict=True)) and a[1] == b[1]
 
 
 def _as_params(params: RenderParams | Mapping | None) -> RenderParams:

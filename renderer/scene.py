@@ -14,10 +14,14 @@ name (``../``, absolute paths, ``file:``, ``http:``) is refused.
 from __future__ import annotations
 
 import posixpath
-from collections.abc import Mapping, Sequence
+import threading
+import weakref
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
+from operator import attrgetter
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 from urllib.parse import unquote
 
 import numpy as np
@@ -163,14 +167,23 @@ class Scene:
 
     @property
     def bounds(self) -> np.ndarray:
-        """ndarray, shape (2, 3): world-space bounds of every instance."""
-        b = np.stack([inst.bounds for inst in self.instances])
-        return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+        """ndarray, shape (2, 3): world-space bounds of every instance (a new array each call).
+
+        Read from :func:`instance_arrays`, so once per scene: see there for when changes to the
+        scene are seen.
+        """
+        return instance_arrays(self).box.copy()
 
     @property
     def triangle_count(self) -> int:
-        """Triangles drawn per pass, counting every instance."""
-        return int(sum(len(self.primitives[i.primitive].indices) for i in self.instances))
+        """Triangles drawn per pass, counting every instance.
+
+        The instances' primitive indices come from :func:`instance_arrays`; each primitive's
+        triangle count is read on every call.
+        """
+        counts = instance_arrays(self).instances_per_primitive(len(self.primitives))
+        return int(sum(int(c) * len(p.indices)
+                       for c, p in zip(counts.tolist(), self.primitives, strict=True) if c))
 
     def with_ground(self, color: Sequence[float] = (0.8, 0.8, 0.8, 1.0)) -> Scene:
         """This scene plus a ground plane under it (receives shadows, casts none).
@@ -196,10 +209,13 @@ class Scene:
         m[:3, 3] = c
         inst = Instance(len(self.primitives), m, cast_shadow=False, receive_shadow=True,
                         name="ground", bounds=np.stack([pos.min(axis=0), pos.max(axis=0)]))
-        return Scene(self.primitives + [ground], self.instances + [inst], self.cameras,
-                     self.lights, key=self.key + ":ground" if self.key else "",
-                     focus=np.stack([lo, hi]) if self.focus is None else self.focus,
-                     warnings=list(self.warnings))
+        grounded = Scene(self.primitives + [ground], self.instances + [inst], self.cameras,
+                         self.lights, key=self.key + ":ground" if self.key else "",
+                         focus=np.stack([lo, hi]) if self.focus is None else self.focus,
+                         warnings=list(self.warnings))
+        # The new scene's arrays are this scene's plus one row: never read 50,000 instances again.
+        _extend_arrays(self, grounded)
+        return grounded
 
     def world_triangles(self, instance: Instance) -> np.ndarray:
         """Triangles of one instance in world space.
@@ -211,6 +227,160 @@ class Scene:
         prim = self.primitives[instance.primitive]
         v = prim.positions.astype(np.float64) @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
         return v[prim.indices]
+
+
+# --------------------------------------------------------------------------------------------
+# A scene's instances as arrays
+# --------------------------------------------------------------------------------------------
+
+# InstanceArrays by scene, weakly: nothing is written into the scene, and the entry goes with it.
+_ARRAYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_ARRAYS_LOCK = threading.Lock()
+
+
+def _stacked(name: str, shape: tuple[int, ...]) -> Callable[[list[Instance]], np.ndarray]:
+    """Reads one array attribute of every instance into one float64 array (n, *shape)."""
+    get = attrgetter(name)
+
+    def read(insts: list[Instance]) -> np.ndarray:
+        if not insts:
+            return np.zeros((0, *shape))
+        # Concatenating along the first axis copies the same values as np.stack, at half the
+        # cost; the map keeps the per-instance work inside C loops.
+        flat = np.concatenate(list(map(get, insts)))
+        return flat.astype(np.float64, copy=False).reshape(len(insts), *shape)
+
+    return read
+
+
+def _flags(name: str, dtype: type) -> Callable[[list[Instance]], np.ndarray]:
+    get = attrgetter(name)
+    return lambda insts: np.fromiter(map(get, insts), dtype, len(insts))
+
+
+class InstanceArrays:
+    """What the renderer reads of a scene's instances, as read-only arrays over all of them.
+
+    Each array is read out of the :class:`Instance` objects the first time it is asked for,
+    then kept (:func:`instance_arrays` keeps one object per scene). A scene made by
+    :meth:`Scene.with_ground` starts from its source's arrays plus one row.
+
+    Attributes
+    ----------
+    primitive : ndarray, shape (N,), intp
+        Each instance's index into :attr:`Scene.primitives`.
+    matrices : ndarray, shape (N, 4, 4), float64
+        Local-to-world matrices.
+    bounds : ndarray, shape (N, 2, 3), float64
+        World boxes, as in :attr:`Instance.bounds`.
+    receive : ndarray, shape (N,), bool
+        ``receive_shadow``.
+    box : ndarray, shape (2, 3)
+        The box around every instance (:attr:`Scene.bounds`).
+    """
+
+    _readers: ClassVar[dict[str, Callable[[list[Instance]], np.ndarray]]] = {
+        "primitive": _flags("primitive", np.intp),
+        "matrices": _stacked("matrix", (4, 4)),
+        "bounds": _stacked("bounds", (2, 3)),
+        "receive": _flags("receive_shadow", bool),
+    }
+
+    def __init__(self, scene: Scene, base: InstanceArrays | None = None) -> None:
+        self._source = _source(scene)
+        self._instances = scene.instances
+        # The arrays of the first len(base) instances (with_ground's source): only the rest
+        # are read.
+        self._base = base
+
+    def __len__(self) -> int:
+        return self._source[1]
+
+    def _read(self, name: str) -> np.ndarray:
+        read = self._readers[name]
+        # Only the instances the entry was made for (a list grown since is a new entry's).
+        insts = self._instances
+        if self._base is None:
+            out = read(insts if len(insts) == len(self) else insts[:len(self)])
+        else:
+            done = len(self._base)
+            out = np.concatenate([getattr(self._base, name), read(insts[done:len(self)])])
+        out.flags.writeable = False
+        return out
+
+    # cached_property is not thread-safe on every Python: a race reads the same values twice.
+    @cached_property
+    def primitive(self) -> np.ndarray:
+        return self._read("primitive")
+
+    @cached_property
+    def matrices(self) -> np.ndarray:
+        return self._read("matrices")
+
+    @cached_property
+    def bounds(self) -> np.ndarray:
+        return self._read("bounds")
+
+    @cached_property
+    def receive(self) -> np.ndarray:
+        return self._read("receive")
+
+    @cached_property
+    def box(self) -> np.ndarray:
+        b = self.bounds
+        if not len(b):
+            raise ValueError("the scene has no instances: it has no bounds")
+        box = np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+        box.flags.writeable = False
+        return box
+
+    def instances_per_primitive(self, n_primitives: int) -> np.ndarray:
+        """Number of instances of each primitive, shape (n_primitives,).
+
+        Raises
+        ------
+        IndexError
+            An instance names a primitive outside ``range(n_primitives)``.
+        """
+        prim = self.primitive
+        if prim.size and (int(prim.min()) < 0 or int(prim.max()) >= n_primitives):
+            raise IndexError("an instance refers to a primitive the scene does not have")
+        return np.bincount(prim, minlength=n_primitives)
+
+
+def _source(scene: Scene) -> tuple:
+    """What a cached entry must still match: the scene's lists, by identity, and their lengths."""
+    return (scene.instances, len(scene.instances), scene.primitives, len(scene.primitives))
+
+
+def _same_source(a: tuple, b: tuple) -> bool:
+    return a[0] is b[0] and a[1] == b[1] and a[2] is b[2] and a[3] == b[3]
+
+
+def instance_arrays(scene: Scene) -> InstanceArrays:
+    """The scene's instance arrays, read once per scene.
+
+    An entry is reused while the scene holds the same ``instances`` and ``primitives`` lists
+    with the same lengths (as the plan's per-scene arrays in :mod:`.plan.instances`): replacing
+    either list, or appending to it, is seen; changing an :class:`Instance` in place (its matrix,
+    bounds or flags) after the scene was read is not. Build a new :class:`Scene` for changed
+    content (the upload cache keeps a scene's matrices on the GPU by its key anyway).
+    """
+    with _ARRAYS_LOCK:
+        hit = _ARRAYS.get(scene)
+    if hit is not None and _same_source(hit._source, _source(scene)):
+        return hit
+    arrays = InstanceArrays(scene)
+    with _ARRAYS_LOCK:
+        _ARRAYS[scene] = arrays
+    return arrays
+
+
+def _extend_arrays(source: Scene, grounded: Scene) -> None:
+    """Give ``grounded`` (``source`` plus instances at the end) arrays built on the source's."""
+    arrays = InstanceArrays(grounded, instance_arrays(source))
+    with _ARRAYS_LOCK:
+        _ARRAYS[grounded] = arrays
 
 
 # --------------------------------------------------------------------------------------------

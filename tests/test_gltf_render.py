@@ -110,3 +110,49 @@ def test_alpha_cutoff_is_exact_in_both_passes(renderer):
     # The light pass cuts the same texels out: the shadow shrinks with the kept part.
     assert shadow[0.0] > shadow[0.5] > shadow[1.0]
     assert shadow[None] == shadow[0.5] and shadow[1.0] < 0.1 * shadow[0.0]
+
+
+def _corpus() -> list[str]:
+    from conftest import models_dir
+
+    return sorted(p.name for p in models_dir().iterdir() if p.suffix in (".glb", ".gltf"))
+
+
+def _three_lights(scene) -> dict[str, list[dict]]:
+    lo, hi = scene.bounds
+    c = (lo + hi) / 2
+    r = float(np.linalg.norm(hi - lo)) / 2
+    return {
+        "directional": [{"type": "directional", "direction": [-0.5, -1.0, 0.2]}],
+        "spot": [{"type": "spot", "position": (c + np.array([0.3, 2.0, 0.4]) * r).tolist(),
+                  "target": c.tolist(), "outer_cone_deg": 50}],
+        "point": [{"type": "point", "position": (c + np.array([0.2, 1.5, 0.3]) * r).tolist()}],
+    }
+
+
+#: Known gaps, measured at 640x480 under the directional light (spot and point pass): the test
+#: fails the day they are fixed, so the mark must then go.
+KNOWN_GAPS = {
+    "Fox.glb": "directional IoU 0.880: 10.8 % of the true shadow missed (thin skinned legs)",
+    "AlphaBlendModeTest.glb": "directional IoU 0.967: blended materials cast at alpha 0.5",
+}
+
+
+def _corpus_cases() -> list:
+    return [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=KNOWN_GAPS[n]))
+            if n in KNOWN_GAPS else n for n in _corpus()]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", _corpus_cases())
+def test_every_model_renders_right_under_every_light_type(renderer, models, name):
+    """Every file in the models folder renders with the reference's shadows under a directional,
+    a spot and a point light (or would have to fail with a named SceneError: none does)."""
+    from conftest import load_model
+    from shadowmap.renderer import testing as T
+
+    scene = load_model(models, name, ground=False)
+    grounded = scene.with_ground()
+    for kind, lights in _three_lights(scene).items():
+        m = T.measure(renderer, grounded, RenderParams(lights=lights))
+        assert m.metrics[0].iou >= 0.97, (name, kind, m.metrics[0].iou)

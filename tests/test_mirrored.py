@@ -233,7 +233,7 @@ def test_upload_keeps_each_winding_in_one_run(renderer, scenes):
         gp = gpu.primitives[gpu.slot_of[1][0]]
         # Scene order has mirrored casters first; the buffer puts the unmirrored ones first.
         assert gp.mirrored == 3 and gp.mirrored_from == 2
-        assert gp.instances == [2, 3, 1, 4, 5]
+        assert gp.instances.tolist() == [2, 3, 1, 4, 5]
         for slot, inst in enumerate(gp.instances):
             assert gpu.slot_of[inst][1] == slot
         ground = gpu.primitives[gpu.slot_of[0][0]]

@@ -13,13 +13,15 @@ from shadowmap.renderer import RenderParams, RequestError
 from shadowmap.renderer import testing as T
 from shadowmap.renderer.camera import resolve_camera
 from shadowmap.renderer.lights import resolve_lights
-from shadowmap.renderer.plan import LightShadow, RenderPlan, make_plan
+from shadowmap.renderer.plan import LightShadow, RenderPlan, geometry, make_plan
 from shadowmap.renderer.plan.context import PlanContext
+from shadowmap.renderer.plan.culling import shadowless_planes, view_planes
 from shadowmap.renderer.plan.fit import CUBE, DIRECTIONAL, SPOT, choose_method
 from shadowmap.renderer.plan.geometry import (
     CUBE_FACES,
     box_corners,
     boxes_in_frustum,
+    clip_boxes,
     cube_face_views,
     face_meets_cone,
     frustum,
@@ -31,6 +33,7 @@ from shadowmap.renderer.plan.geometry import (
     pyramid_planes,
     transform_points,
 )
+from shadowmap.renderer.scene import Instance, Scene, scene_from_meshes, world_bounds
 
 CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
 SUN = {"direction": [-0.5, -1, -0.3]}
@@ -338,3 +341,222 @@ def test_face_meets_cone():
     meets = [face_meets_cone(np.array(f, float), axis, math.cos(math.radians(40)))
              for f, _ in CUBE_FACES]
     assert meets == [True, False, True, True, True, True]
+
+
+# -- what the maps cover ----------------------------------------------------------------------
+
+
+def box_field(side: int = 60, pitch: float = 1.5) -> Scene:
+    """``side`` x ``side`` boxes 0.6 wide and 1.0-1.6 tall on a grid centred on the origin, one
+    primitive, over a ground plane that casts nothing (bench/instancing.py in small)."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(0.6, 1.0, 0.6))
+    box.apply_translation((0, 0.5, 0))
+    base = scene_from_meshes([box])
+    local = base.primitives[0].local_bounds.astype(np.float64)
+    rng = np.random.default_rng(5)
+    out = []
+    for k in range(side * side):
+        m = np.diag([1.0, rng.uniform(1.0, 1.6), 1.0, 1.0])
+        m[[0, 2], 3] = (np.array([k % side, k // side]) - (side - 1) / 2) * pitch
+        out.append(Instance(0, m, bounds=world_bounds(local, m)))
+    return Scene(base.primitives, out).with_ground()
+
+
+def field_corner(side: int = 60, pitch: float = 1.5) -> dict:
+    """Looking down at one corner of :func:`box_field` from 30 units up, as the benchmark does."""
+    c = -side * pitch / 2
+    return {"eye": [c + 20, 30.0, c + 5], "target": [c + 20, 0.0, c + 22]}
+
+
+def seen_samples(ctx: PlanContext, per_box: int = 48, seed: int = 0) -> np.ndarray:
+    """Points (M, 3) of the seen receivers' boxes inside the camera frustum: random ones (more in
+    the largest box, a ground), and the boxes' corners."""
+    rng = np.random.default_rng(seed)
+    b = ctx.bounds[ctx.receivers()]
+    u = rng.random((len(b), per_box, 3))
+    inner = b[:, 0, None] + u * (b[:, 1] - b[:, 0])[:, None]
+    big = b[np.argmax(np.max(b[:, 1] - b[:, 0], axis=1))]
+    extra = big[0] + rng.random((20000, 3)) * (big[1] - big[0])
+    pts = np.concatenate([inner.reshape(-1, 3), extra, box_corners(b).reshape(-1, 3)])
+    planes = view_planes(ctx.camera, ctx.origin)
+    return pts[np.all(pts @ planes[:, :3].T + planes[:, 3] >= 0, axis=1)]
+
+
+def seen_support(ctx: PlanContext, d: np.ndarray) -> float:
+    """max d . x over the seen receivers' parts (their boxes inside the camera frustum), by
+    linear programming for the boxes that cross the frustum."""
+    planes = view_planes(ctx.camera, ctx.origin)
+    best = -np.inf
+    for i in ctx.receivers():
+        corners = box_corners(ctx.bounds[i])
+        if np.all(corners @ planes[:, :3].T + planes[:, 3] >= 0):
+            best = max(best, float((corners @ d).max()))
+        else:
+            best = max(best, _part_support(ctx.bounds[i], planes, d))
+    return best
+
+
+def ray_hits(bounds: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
+             t_max: float) -> np.ndarray:
+    """(P, N) bool: whether the ray ``origins + t dirs``, 0 <= t <= t_max, meets each box."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1 / dirs[:, None, :]  # (P, 1, 3)
+        t0 = (bounds[None, :, 0] - origins[:, None]) * inv
+        t1 = (bounds[None, :, 1] - origins[:, None]) * inv
+    # A ray parallel to a slab: inside it for every t, or never.
+    par = dirs[:, None, :] == 0
+    inside = (origins[:, None] >= bounds[None, :, 0]) & (origins[:, None] <= bounds[None, :, 1])
+    lo = np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1)).max(axis=2)
+    hi = np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1)).min(axis=2)
+    return (lo <= hi) & (hi >= 0) & (lo <= t_max)
+
+
+def small_field() -> Scene:
+    return box_field(40)
+
+
+COVERAGE_CASES = {
+    "field corner, sun": (small_field, field_corner(40), {"direction": [-0.45, -1.0, -0.3]}),
+    # Long shadows into the view from boxes outside it.
+    "field corner, low sun": (small_field, field_corner(40), {"direction": [1.0, -0.25, 0.6]}),
+    "field corner, spot": (small_field, field_corner(40),
+                           {"type": "spot", "position": [-15.0, 12.0, -25.0],
+                            "target": [-15, 0, -11], "outer_cone_deg": 45}),
+    "field corner, point": (small_field, field_corner(40),
+                            {"type": "point", "position": [-18.0, 6.0, -15.0]}),
+    "caster on ground, sun": (T.caster_on_ground, CAMERA, SUN),
+    "caster on ground, spot": (T.caster_on_ground, CAMERA, SPOT_40),
+    "caster on ground, wide spot": (T.caster_on_ground, CAMERA, WIDE_SPOT),
+    "room, point": (T.room, ROOM_CAMERA, POINT),
+    "room, sun": (T.room, ROOM_CAMERA, SUN),
+    "plain to the horizon, sun": (T.pebbles_on_a_plain, {"eye": [0, 3, 6], "target": [0, 0, 0]},
+                                  {"direction": [0.3, -0.5, 1.0]}),
+}
+
+
+@pytest.mark.parametrize("name", list(COVERAGE_CASES))
+def test_maps_cover_every_seen_receiver_point_and_its_casters(name):
+    # The map is fitted to what the camera sees of the receivers: every receiver point inside
+    # the view frustum must lie in the map (laterally and before its far plane), and every
+    # caster on its way to the light must be drawn and inside the map's depth range, whether
+    # the camera sees that caster or not.
+    build, camera, light_params = COVERAGE_CASES[name]
+    args = inputs(build(), camera, [light_params])
+    lp = make_plan(*args).lights[0]
+    assert lp.kind is not None, lp.to_dict()
+    ctx = PlanContext.build(args[0], args[1], args[3], args[4])
+    lt = args[2][0]
+
+    def lit(p: np.ndarray) -> np.ndarray:  # what the light reaches (a spot: its cone)
+        if lt.type != "spot":
+            return np.ones(len(p), bool)
+        rel = p - lp.position
+        return rel @ lt.direction >= np.cos(lt.outer_cone) * np.linalg.norm(rel, axis=1)
+
+    pts = seen_samples(ctx)
+    pts = pts[lit(pts)]
+    assert len(pts) > 100
+    # Casters on the way from a seen receiver point to the light.
+    cast = ctx.cast & ~shadowless_planes(ctx, lt, lp.position, ctx.receivers())
+    idx = np.flatnonzero(cast)
+    sample = pts[np.random.default_rng(1).permutation(len(pts))[:1500]]
+    if lt.type == "directional":
+        hits = ray_hits(ctx.bounds[idx], sample, np.broadcast_to(-lt.direction, sample.shape),
+                        np.inf)
+    else:
+        hits = ray_hits(ctx.bounds[idx], sample, lp.position - sample, 1.0)
+    needed = idx[hits.any(axis=0)]
+    sample = sample[hits.any(axis=1)]  # points a caster may shadow: they must lie in the map
+    assert len(needed) > 0 and len(sample) > 10
+    assert set(needed.tolist()) <= set(lp.casters), sorted(set(needed.tolist()) - set(lp.casters))
+    if "low sun" in name:
+        assert not ctx.in_view[needed].all()  # some of them out of the camera's sight
+    if lp.kind == "cube":
+        rel = pts - lp.position
+        cheb = np.abs(rel).max(axis=1)
+        assert np.all(cheb <= lp.far), (cheb.max(), lp.far)
+        axis = np.argmax(np.abs(rel), axis=1)
+        face = 2 * axis + (rel[np.arange(len(rel)), axis] < 0)
+        assert set(face.tolist()) <= set(lp.faces)
+    else:
+        depth = -transform_points(lp.view, pts)[:, 2]
+        assert np.all(depth <= lp.far), (depth.max(), lp.far)
+        clip = np.c_[transform_points(lp.view, sample), np.ones(len(sample))] @ lp.proj.T
+        ndc = clip[:, :2] / clip[:, 3:]
+        assert np.all(np.abs(ndc) <= 1), np.abs(ndc).max()
+    if lp.kind == "ortho":
+        corners = transform_points(lp.view, ctx.corners[needed])
+        assert np.all(-corners[..., 2] >= lp.near)
+
+
+def test_directional_map_covers_only_the_seen_part_of_a_large_field():
+    # 3,600 boxes, about 600 in view: the map spans what the camera sees of the field and the
+    # ground (the boxes and the ground clipped to the view frustum), not the field, and draws
+    # the casters over that part only.
+    scene = box_field()
+    args = inputs(scene, field_corner(), [{"direction": [-0.45, -1.0, -0.3]}])
+    lp = make_plan(*args).lights[0]
+    ctx = PlanContext.build(args[0], args[1], args[3], args[4])
+    axes = lp.view[:3, :3]  # light view x, y, z as world directions
+    x0, x1 = -seen_support(ctx, -axes[0]), seen_support(ctx, axes[0])
+    y0, y1 = -seen_support(ctx, -axes[1]), seen_support(ctx, axes[1])
+    deepest = seen_support(ctx, -axes[2])
+    left, right = (-1 - lp.proj[0, 3]) / lp.proj[0, 0], (1 - lp.proj[0, 3]) / lp.proj[0, 0]
+    bottom, top = (-1 - lp.proj[1, 3]) / lp.proj[1, 1], (1 - lp.proj[1, 3]) / lp.proj[1, 1]
+    # The window is the seen part's extent, narrowed to the casters', plus the filter margin.
+    pad = lp.texel[0] * ctx.margin_texels * (1 + 1e-9)
+    assert x0 - pad <= left and right <= x1 + pad and y0 - pad <= bottom and top <= y1 + pad
+    assert deepest <= lp.far <= deepest + pad + 2e-3 * (lp.far - lp.near)
+    assert (x1 - x0) * (y1 - y0) < 0.5 * (scene.bounds[1, 0] - scene.bounds[0, 0]) ** 2
+    assert len(lp.casters) < 0.4 * len(scene.instances)
+    assert lp.skipped["outside_frustum"] == len(scene.instances) - 1 - len(lp.casters)
+
+
+def _part_support(box: np.ndarray, planes: np.ndarray, d: np.ndarray) -> float:
+    """max d . x over box ∩ {planes >= 0}, by linear programming (-inf when empty)."""
+    from scipy.optimize import linprog
+
+    r = linprog(-d, A_ub=-planes[:, :3], b_ub=planes[:, 3], bounds=list(zip(*box, strict=True)),
+                method="highs")
+    return -r.fun if r.status == 0 else -np.inf
+
+
+def _random_frustum(rng) -> tuple[np.ndarray, np.ndarray]:
+    pose = look_at(rng.uniform(-5, 5, 3), rng.uniform(-2, 2, 3))
+    vp = perspective(math.radians(rng.uniform(20, 90)), rng.uniform(0.5, 2),
+                     rng.uniform(0.1, 2), rng.uniform(5, 20)) @ np.linalg.inv(pose)
+    inv = np.linalg.inv(vp)
+    ndc = np.array([[sx, sy, z, 1.0] for z in (-1, 1) for sx in (-1, 1) for sy in (-1, 1)])
+    h = ndc @ inv.T
+    return frustum_planes(vp), h[:, :3] / h[:, 3:]
+
+
+def test_clip_boxes_gives_the_extent_of_each_part_exactly():
+    rng = np.random.default_rng(2)
+    dirs = np.concatenate([np.eye(3), -np.eye(3), rng.normal(size=(3, 3))])
+    for trial in range(12):
+        planes, hull = _random_frustum(rng)
+        c, half = rng.uniform(-6, 6, (6, 3)), rng.uniform(0, 3, (6, 3))
+        if trial % 3 == 0:
+            half[:, 1] = 0  # flat boxes (a ground plane)
+        boxes = np.stack([c - half, c + half], axis=1)
+        for box in boxes:
+            pts = clip_boxes(box[None], planes, hull, 1e-9)
+            for d in dirs:
+                want = _part_support(box, planes, d)
+                got = float((pts @ d).max()) if len(pts) else -np.inf
+                assert got == pytest.approx(want, abs=1e-7) or want == got == -np.inf
+
+
+def test_clip_boxes_past_the_cap_is_larger_never_smaller(monkeypatch):
+    rng = np.random.default_rng(4)
+    planes, hull = _random_frustum(rng)
+    c = rng.uniform(-4, 4, (40, 3))
+    boxes = np.stack([c - 0.5, c + 0.5], axis=1)
+    exact = clip_boxes(boxes, planes, hull, 1e-9)
+    monkeypatch.setattr(geometry, "MAX_CLIPPED_BOXES", 5)
+    capped = clip_boxes(boxes, planes, hull, 1e-9)
+    assert np.all(capped.min(axis=0) <= exact.min(axis=0) + 1e-12)
+    assert np.all(capped.max(axis=0) >= exact.max(axis=0) - 1e-12)

@@ -7,7 +7,8 @@ from that context's thread only, and is freed by its ``release()`` (safe to call
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +17,8 @@ import pyrender
 from OpenGL import GL
 
 from ..errors import RenderError
-from ..scene import Scene
+from ..plan.instances import scene_box
+from ..scene import Material, Scene, instance_arrays
 
 # --------------------------------------------------------------------------------------------
 # Scene upload
@@ -35,8 +37,8 @@ class GpuPrimitive:
     Attributes
     ----------
     mesh : pyrender.Primitive
-    instances : list of int
-        Indices into :attr:`Scene.instances`, in instance-buffer order.
+    instances : ndarray, shape (K,), intp
+        Indices into :attr:`Scene.instances`, in instance-buffer order (read-only).
     texture : pyrender.Texture or None
     loc_uv, loc_color, loc_model : int
         Attribute locations of pyrender's interleaved layout (positions 0, normals 1, then
@@ -45,44 +47,76 @@ class GpuPrimitive:
         Indices per instance.
     mirrored_from : int
         First slot of the mirrored instances; ``len(instances)`` when there are none.
+    primitive : int
+        Index into :attr:`Scene.primitives`.
+    material : Material
+        The primitive's material (the same for every instance).
+    indirect : IndirectBuffer or None
+        Where :meth:`draw` writes the commands of a multi-draw; None where the context has no
+        ``glMultiDrawElementsIndirect`` (GL 4.3): one call per run of slots instead.
     """
 
     mesh: pyrender.Primitive
-    instances: list[int]
+    instances: np.ndarray
     texture: pyrender.Texture | None
     loc_uv: int
     loc_color: int
     loc_model: int
     count: int
     mirrored_from: int
+    primitive: int
+    material: Material
+    indirect: IndirectBuffer | None = None
 
     @property
     def mirrored(self) -> int:
         """Number of mirrored instances (the last ones in the buffer)."""
         return len(self.instances) - self.mirrored_from
 
-    def draw(self, slots: list[int] | None = None) -> None:
+    def draw(self, slots: npt.ArrayLike | None = None, *, ordered: bool = False) -> None:
         """Draw all instances, or only the given slots (positions in :attr:`instances`).
+
+        Slots are drawn in increasing order, or with ``ordered`` in the order given (blended
+        instances back to front). Each run of consecutive slots is one instanced draw, and the
+        runs of one winding are one ``glMultiDrawElementsIndirect``: GL draws its commands, and
+        the instances of each, in order, so the frame is the one that one call per run draws.
 
         Mirrored instances are drawn with clockwise front faces, so that back-face culling, where
         the caller enables it, removes the same faces as for their unmirrored counterparts.
         """
         self.mesh._bind()
+        n = len(self.instances)
         if slots is None and not self.mirrored:
-            GL.glDrawElementsInstanced(
-                GL.GL_TRIANGLES, self.count, GL.GL_UNSIGNED_INT, None, len(self.instances)
-            )
+            GL.glDrawElementsInstanced(GL.GL_TRIANGLES, self.count, GL.GL_UNSIGNED_INT, None, n)
         else:
-            runs = [(0, len(self.instances))] if slots is None else _runs(slots)
-            for start, n, mirrored in _split_runs(runs, self.mirrored_from):
+            if slots is None:
+                s = np.arange(n)
+            else:
+                s = np.asarray(slots, dtype=np.intp).reshape(-1)
+                s = s if ordered else np.sort(s)
+            runs = _slot_runs(s, self.mirrored_from)
+            for start, length, mirrored in runs:
                 if mirrored:
                     GL.glFrontFace(GL.GL_CW)
-                GL.glDrawElementsInstancedBaseInstance(
-                    GL.GL_TRIANGLES, self.count, GL.GL_UNSIGNED_INT, None, n, start
-                )
+                self._draw_runs(start, length)
                 if mirrored:
                     GL.glFrontFace(GL.GL_CCW)  # GL's default, which every other draw assumes
         self.mesh._unbind()
+
+    def _draw_runs(self, start: np.ndarray, length: np.ndarray) -> None:
+        """Draw the runs ``start[i] .. start[i] + length[i]`` of slots, in that order."""
+        if len(start) == 1 or self.indirect is None:
+            for first, n in zip(start.tolist(), length.tolist(), strict=True):
+                GL.glDrawElementsInstancedBaseInstance(
+                    GL.GL_TRIANGLES, self.count, GL.GL_UNSIGNED_INT, None, n, first
+                )
+            return
+        # DrawElementsIndirectCommand: count, instanceCount, firstIndex, baseVertex, baseInstance
+        commands = np.zeros((len(start), 5), np.uint32)
+        commands[:, 0] = self.count
+        commands[:, 1] = length
+        commands[:, 4] = start
+        self.indirect.draw(commands)
 
     def release(self) -> None:
         self.mesh.delete()
@@ -90,27 +124,74 @@ class GpuPrimitive:
             self.texture.delete()
 
 
-def _split_runs(runs: list[tuple[int, int]], boundary: int) -> list[tuple[int, int, bool]]:
-    """Runs of slots cut at ``boundary``: (start, length, slots from ``boundary`` on)."""
-    out: list[tuple[int, int, bool]] = []
-    for start, n in runs:
-        end = start + n
-        if start < boundary < end:
-            out += [(start, boundary - start, False), (boundary, end - boundary, True)]
-        else:
-            out.append((start, n, start >= boundary))
-    return out
+def _slot_runs(slots: np.ndarray, boundary: int) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+    """Runs of consecutive slots, in the order given, cut at ``boundary``, as the list of
+    (starts, lengths, mirrored) of each stretch of runs on one side of it."""
+    if not len(slots):
+        return []
+    side = slots >= boundary
+    cut = np.flatnonzero((np.diff(slots) != 1) | (side[1:] != side[:-1])) + 1
+    first = np.concatenate([[0], cut])
+    lengths = np.diff(np.concatenate([first, [len(slots)]]))
+    return _group_sides(slots[first], lengths, side[first])
 
 
-def _runs(slots: list[int]) -> list[tuple[int, int]]:
-    """Consecutive runs of sorted slots as (start, length)."""
-    out: list[tuple[int, int]] = []
-    for s in sorted(slots):
-        if out and out[-1][0] + out[-1][1] == s:
-            out[-1] = (out[-1][0], out[-1][1] + 1)
-        else:
-            out.append((s, 1))
-    return out
+def _group_sides(start: np.ndarray, length: np.ndarray,
+                 side: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+    """Consecutive runs on the same side of the boundary, together."""
+    cut = np.flatnonzero(side[1:] != side[:-1]) + 1
+    bounds = np.concatenate([[0], cut, [len(start)]]).tolist()
+    return [(start[a:b], length[a:b], bool(side[a])) for a, b in itertools.pairwise(bounds)]
+
+
+class IndirectBuffer:
+    """A small ``GL_DRAW_INDIRECT_BUFFER`` refilled for each multi-draw (orphaned each time:
+    GL keeps the commands of a draw already issued)."""
+
+    def __init__(self) -> None:
+        self.buffer = 0
+
+    def draw(self, commands: np.ndarray) -> None:
+        """``glMultiDrawElementsIndirect`` of triangles with uint32 indices, one command a row
+        of ``commands`` (uint32, shape (n, 5)), for the vertex array bound now."""
+        if not self.buffer:
+            self.buffer = int(GL.glGenBuffers(1))
+        data = np.ascontiguousarray(commands, dtype=np.uint32)
+        GL.glBindBuffer(GL.GL_DRAW_INDIRECT_BUFFER, self.buffer)
+        GL.glBufferData(GL.GL_DRAW_INDIRECT_BUFFER, data.nbytes, data, GL.GL_STREAM_DRAW)
+        GL.glMultiDrawElementsIndirect(GL.GL_TRIANGLES, GL.GL_UNSIGNED_INT, None, len(data), 0)
+        GL.glBindBuffer(GL.GL_DRAW_INDIRECT_BUFFER, 0)
+
+    def release(self) -> None:
+        if self.buffer:
+            GL.glDeleteBuffers(1, [self.buffer])
+            self.buffer = 0
+
+
+def _has_multi_draw_indirect() -> bool:
+    """Whether the current context has ``glMultiDrawElementsIndirect`` (core in GL 4.3)."""
+    major = int(GL.glGetIntegerv(GL.GL_MAJOR_VERSION))
+    minor = int(GL.glGetIntegerv(GL.GL_MINOR_VERSION))
+    return (major, minor) >= (4, 3) and bool(GL.glMultiDrawElementsIndirect)
+
+
+class SlotMap(Mapping[int, tuple[int, int]]):
+    """Scene instance index -> (GPU primitive index, slot in its instance buffer), read from
+    :attr:`GpuScene.prim_of` and :attr:`GpuScene.slot` (kept for callers of one instance)."""
+
+    def __init__(self, prim_of: np.ndarray, slot: np.ndarray) -> None:
+        self._prim_of, self._slot = prim_of, slot
+
+    def __getitem__(self, index: int) -> tuple[int, int]:
+        if not 0 <= index < len(self._slot):
+            raise KeyError(index)
+        return int(self._prim_of[index]), int(self._slot[index])
+
+    def __len__(self) -> int:
+        return len(self._slot)
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(range(len(self._slot)))
 
 
 @dataclass(eq=False)
@@ -120,42 +201,82 @@ class GpuScene:
     Model matrices are uploaded as ``T(-origin) @ M`` computed in float64, so float32 on the GPU
     keeps its precision for a scene far from the world origin.
 
+    GPU primitives follow the order in which the scene's instances first name each primitive;
+    each one's instance buffer holds its unmirrored instances in scene order, then its mirrored
+    ones in scene order.
+
     Attributes
     ----------
     origin : ndarray, shape (3,), float64
     primitives : list of GpuPrimitive
-    slot_of : dict of int to (int, int)
-        Scene instance index -> (GPU primitive index, slot in its instance buffer).
+    prim_of, slot : ndarray, shape (N,), intp
+        Per scene instance: its GPU primitive (index into :attr:`primitives`) and its slot in
+        that primitive's instance buffer (read-only).
+    blended : ndarray, shape (len(primitives),), bool
+        GPU primitives whose material blends (``alpha_mode == "BLEND"``).
     """
 
     scene: Scene
     origin: np.ndarray
     primitives: list[GpuPrimitive] = field(default_factory=list)
-    slot_of: dict[int, tuple[int, int]] = field(default_factory=dict)
+    prim_of: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
+    slot: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
+    blended: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     nbytes: int = 0
+    indirect: IndirectBuffer | None = None
+
+    @property
+    def slot_of(self) -> SlotMap:
+        """Scene instance index -> (GPU primitive index, slot in its instance buffer)."""
+        return SlotMap(self.prim_of, self.slot)
 
     @classmethod
     def upload(cls, scene: Scene) -> GpuScene:
-        lo, hi = scene.bounds
+        arrays = instance_arrays(scene)
+        # Scene.bounds, from the plan's per-scene arrays, which this scene's plan reads anyway.
+        lo, hi = scene_box(scene)
         origin = (lo + hi) / 2
         gs = cls(scene=scene, origin=origin)
-        shift = np.eye(4)
-        shift[:3, 3] = -origin
-        by_prim: dict[int, list[int]] = {}
-        for idx, inst in enumerate(scene.instances):
-            by_prim.setdefault(inst.primitive, []).append(idx)
+        matrices = arrays.matrices
+        n = len(matrices)
+        # GPU primitives in the order the instances first name them, as (scene primitive, GPU
+        # index of each instance).
+        used, first, prim_of = np.unique(arrays.primitive, return_index=True, return_inverse=True)
+        by_first = np.argsort(first, kind="stable")
+        rank = np.empty(len(used), np.intp)
+        rank[by_first] = np.arange(len(used))
+        prim_of = rank[prim_of.reshape(-1)]
         # Mirrored instances after the others (a stable partition: without any, the buffer is
         # in scene order as before), so that each kind is one run of slots with one winding.
-        dets = np.linalg.det(np.stack([inst.matrix[:3, :3] for inst in scene.instances]))
-        mirrored = {int(i) for i in np.flatnonzero(dets < 0)}
-        if mirrored:
-            by_prim = {p: [i for i in ids if i not in mirrored] + [i for i in ids if i in mirrored]
-                       for p, ids in by_prim.items()}
+        mirrored = np.linalg.det(matrices[:, :3, :3]) < 0
+        order = np.lexsort((mirrored, prim_of))  # stable: scene order within each kind
+        counts = np.bincount(prim_of, minlength=len(used))
+        unmirrored = np.bincount(prim_of[~mirrored], minlength=len(used))
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
+        slot = np.empty(n, np.intp)
+        slot[order] = np.arange(n) - np.repeat(starts, counts)
+        for a in (prim_of, slot, order):
+            a.flags.writeable = False
+        gs.prim_of, gs.slot = prim_of, slot
+        gs.blended = np.array([scene.primitives[p].material.alpha_mode == "BLEND"
+                               for p in used[by_first].tolist()], bool)
+        # T(-origin) @ M: for affine matrices only the translation changes, by exactly the
+        # subtraction the product computes (the other terms add zeros).
+        affine = bool(np.all(matrices[:, 3] == (0.0, 0.0, 0.0, 1.0)))
+        shift = np.eye(4)
+        shift[:3, 3] = -origin
+        if _has_multi_draw_indirect():
+            gs.indirect = IndirectBuffer()
         textures: dict[int, pyrender.Texture] = {}
         try:
-            for pidx, inst_ids in by_prim.items():
+            for g, pidx in enumerate(used[by_first].tolist()):
                 prim = scene.primitives[pidx]
-                poses = np.stack([shift @ scene.instances[i].matrix for i in inst_ids])
+                inst_ids = order[starts[g]:starts[g] + counts[g]]
+                if affine:
+                    poses = matrices[inst_ids]
+                    poses[:, :3, 3] -= origin
+                else:
+                    poses = np.matmul(shift, matrices[inst_ids])
                 mesh = pyrender.Primitive(
                     positions=prim.positions,
                     normals=prim.normals,
@@ -190,10 +311,11 @@ class GpuScene:
                     loc_color=2 + has_uv,
                     loc_model=2 + has_uv + has_color,
                     count=int(prim.indices.size),
-                    mirrored_from=sum(1 for i in inst_ids if i not in mirrored),
+                    mirrored_from=int(unmirrored[g]),
+                    primitive=pidx,
+                    material=prim.material,
+                    indirect=gs.indirect,
                 )
-                for slot, i in enumerate(inst_ids):
-                    gs.slot_of[i] = (len(gs.primitives), slot)
                 gs.primitives.append(gp)
                 gs.nbytes += prim.positions.nbytes * (2 + has_uv + has_color) + prim.indices.nbytes
         except Exception:
@@ -204,10 +326,63 @@ class GpuScene:
             raise
         return gs
 
+    def groups(self, instances: npt.ArrayLike, split: np.ndarray | None = None
+               ) -> list[tuple[int, bool, np.ndarray]]:
+        """Scene instances sorted out by GPU primitive, for one draw each.
+
+        Parameters
+        ----------
+        instances : array of int
+            Scene instance indices.
+        split : ndarray, shape (N,), bool, optional
+            A per-scene-instance flag that also separates groups (e.g. ``receive_shadow``).
+
+        Returns
+        -------
+        list of (GPU primitive index, flag, slots)
+            In the order in which ``instances`` first reach each group; ``slots`` (intp) in the
+            order of ``instances``. ``flag`` is False without ``split``.
+        """
+        inst = np.asarray(instances, dtype=np.intp).reshape(-1)
+        if not len(inst):
+            return []
+        key = self.prim_of[inst] * 2
+        if split is not None:
+            key = key + split[inst]
+        order = np.argsort(key, kind="stable")
+        k = key[order]
+        cut = np.flatnonzero(k[1:] != k[:-1]) + 1
+        bounds = np.concatenate([[0], cut, [len(k)]])
+        heads = bounds[:-1]
+        # A stable sort puts each group's first instance at its head.
+        by_first = np.argsort(order[heads])
+        slots = self.slot[inst[order]]
+        return [(int(k[a]) // 2, bool(k[a] & 1), slots[a:b])
+                for a, b in zip(heads[by_first].tolist(), bounds[1:][by_first].tolist(),
+                                strict=True)]
+
+    def runs(self, instances: npt.ArrayLike, split: np.ndarray | None = None
+             ) -> list[tuple[int, bool, np.ndarray]]:
+        """Like :meth:`groups`, but keeping the order of ``instances``: one group for each
+        stretch of consecutive instances of one GPU primitive (and flag)."""
+        inst = np.asarray(instances, dtype=np.intp).reshape(-1)
+        if not len(inst):
+            return []
+        key = self.prim_of[inst] * 2
+        if split is not None:
+            key = key + split[inst]
+        cut = np.flatnonzero(key[1:] != key[:-1]) + 1
+        bounds = np.concatenate([[0], cut, [len(key)]]).tolist()
+        slots = self.slot[inst]
+        return [(int(key[a]) // 2, bool(key[a] & 1), slots[a:b])
+                for a, b in itertools.pairwise(bounds)]
+
     def release(self) -> None:
         for gp in self.primitives:
             gp.release()
         self.primitives.clear()
+        if self.indirect is not None:
+            self.indirect.release()
 
 
 # --------------------------------------------------------------------------------------------

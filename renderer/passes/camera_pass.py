@@ -20,7 +20,7 @@ from ..gl.programs import Program, ProgramCache
 from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene
 from ..params import RenderParams
 from ..plan import RenderPlan
-from ..scene import Material
+from ..scene import Material, instance_arrays
 from ..shader_constants import LIGHT_TYPES
 from .light_pass import ShadowMap
 
@@ -103,27 +103,28 @@ class CameraPass:
         frame = _FrameState(plan, maps, params, view_proj, cam.position - plan.origin, vis_targets,
                             generic=not params.optimize)
         units = self._bind_maps(maps)
-        # (GPU primitive, instance-buffer slot, scene instance) per visible instance
-        opaque: list[tuple[int, int, int]] = []
-        blended: list[tuple[int, int, int]] = []
-        for inst in plan.visible:
-            p, slot = gpu.slot_of[inst]
-            mat = gpu.scene.primitives[gpu.scene.instances[inst].primitive].material
-            (blended if mat.alpha_mode == "BLEND" else opaque).append((p, slot, inst))
-        self._draw_group(gpu, _group(opaque), frame, units)
-        if blended:
-            # Back to front by box centre; no depth or visibility writes for transparent surfaces.
+        arrays = instance_arrays(gpu.scene)
+        # Instances of one primitive with different receive flags are drawn apart (the flag is
+        # a uniform); without maps it changes nothing.
+        receive = arrays.receive if frame.maps else None
+        visible = np.asarray(plan.visible, dtype=np.intp).reshape(-1)
+        blend = gpu.blended[gpu.prim_of[visible]]  # the material is the primitive's
+        self._draw_groups(gpu, gpu.groups(visible[~blend], receive), frame, units)
+        blended = visible[blend]
+        if len(blended):
+            # Back to front by box centre (a stable sort on the negated distance, as the sort
+            # of one instance at a time did); no depth or visibility writes for transparent
+            # surfaces. Runs of one primitive in that order are one draw each.
             eye = cam.position
-            blended.sort(key=lambda e: -float(np.linalg.norm(
-                gpu.scene.instances[e[2]].bounds.mean(0) - eye)))
+            distance = np.linalg.norm(arrays.bounds[blended].mean(axis=1) - eye, axis=1)
+            blended = blended[np.argsort(-distance, kind="stable")]
             GL.glEnable(GL.GL_BLEND)
             GL.glBlendFuncSeparate(GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA, GL.GL_ONE,
                                    GL.GL_ONE_MINUS_SRC_ALPHA)
             GL.glDepthMask(GL.GL_FALSE)
             for i in range(vis_targets):
                 GL.glColorMaski(1 + i, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
-            for p, slot, _ in blended:
-                self._draw_group(gpu, [(p, [slot])], frame, units)
+            self._draw_groups(gpu, gpu.runs(blended, receive), frame, units, ordered=True)
             for i in range(vis_targets):
                 GL.glColorMaski(1 + i, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
             GL.glDepthMask(GL.GL_TRUE)
@@ -139,12 +140,12 @@ class CameraPass:
         GL.glActiveTexture(GL.GL_TEXTURE0)
         return units
 
-    def _draw_group(self, gpu: GpuScene, groups: list[tuple[int, list[int]]], frame: _FrameState,
-                    units: list[int]) -> None:
-        for p, slots in groups:
+    def _draw_groups(self, gpu: GpuScene, groups: list[tuple[int, bool, np.ndarray]],
+                     frame: _FrameState, units: list[int], ordered: bool = False) -> None:
+        """One draw per (GPU primitive, receive flag, slots) group, in the order given."""
+        for p, receive, slots in groups:
             gp = gpu.primitives[p]
-            mat = gpu.scene.primitives[gpu.scene.instances[gp.instances[0]].primitive].material
-            receive = gpu.scene.instances[gp.instances[slots[0]]].receive_shadow
+            mat = gp.material
             defines = frame.defines(gp, mat)
             self.variants.add(tuple(sorted(defines.items())))
             prog = self.programs.get("camera_pass.vert", "camera_pass.frag", defines)
@@ -172,7 +173,8 @@ class CameraPass:
             else:
                 GL.glEnable(GL.GL_CULL_FACE)
                 GL.glCullFace(GL.GL_BACK)
-            gp.draw(None if len(slots) == len(gp.instances) else slots)
+            every = not ordered and len(slots) == len(gp.instances)  # ordered: as given
+            gp.draw(None if every else slots, ordered=ordered)
         GL.glDisable(GL.GL_CULL_FACE)
 
     def read(self, outputs: Sequence[str], n_lights: int, alpha: bool,
@@ -206,13 +208,6 @@ class CameraPass:
         if self._white:
             GL.glDeleteTextures([self._white])
             self._white = 0
-
-
-def _group(entries: list[tuple[int, int, int]]) -> list[tuple[int, list[int]]]:
-    by: dict[int, list[int]] = {}
-    for p, slot, _ in entries:
-        by.setdefault(p, []).append(slot)
-    return list(by.items())
 
 
 class _FrameState:

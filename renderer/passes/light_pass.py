@@ -123,6 +123,7 @@ class LightPass:
                 continue
             fb = self._framebuffer((lp.kind, lp.map_size, shadows.encoding, linear), taken)
             taken.add(id(fb))
+            groups = gpu.groups(lp.casters)  # once per light, for every face
             views: list[tuple[int | None, np.ndarray]] = [(None, lp.view)]
             if lp.kind == "cube":
                 views = [(f, lp.face_views[f]) for f in lp.faces]
@@ -134,23 +135,20 @@ class LightPass:
                 GL.glClearColor(1.0, 1.0, 1.0, 1.0)
                 GL.glClearDepth(1.0)
                 GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
-                self._draw_casters(gpu, lp, view, shadows)
+                self._draw_casters(gpu, groups, lp, view, shadows)
             maps.append(ShadowMap(lp, fb, shadows.encoding))
         self._trim(taken)
         return maps
 
-    def _draw_casters(self, gpu: GpuScene, lp: LightShadow, view: np.ndarray,
-                      shadows: ShadowParams) -> None:
+    def _draw_casters(self, gpu: GpuScene, groups: list[tuple[int, bool, np.ndarray]],
+                      lp: LightShadow, view: np.ndarray, shadows: ShadowParams) -> None:
+        """Draw the casters, one draw per GPU primitive (:meth:`GpuScene.groups`)."""
         perspective = lp.kind != "ortho"
         po_factor, po_units = shadows.bias.polygon_offset
         polygon_offset = bool(po_factor or po_units)
-        by_prim: dict[int, list[int]] = {}
-        for inst in lp.casters:
-            p, slot = gpu.slot_of[inst]
-            by_prim.setdefault(p, []).append(slot)
-        for p, slots in by_prim.items():
+        for p, _, slots in groups:
             gp = gpu.primitives[p]
-            mat = gpu.scene.primitives[gpu.scene.instances[gp.instances[0]].primitive].material
+            mat = gp.material
             cutoff = _shadow_cutoff(mat)
             if cutoff is not None and gp.texture is None and mat.base_color[3] < cutoff:
                 continue  # wholly transparent for shadows

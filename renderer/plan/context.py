@@ -3,7 +3,8 @@
 Built once per request and read-only afterwards (its arrays are locked against writes), so a fit
 cannot change what the next light sees. What depends only on the scene (boxes, flags, planes, and
 the boxes relative to the upload's origin) comes from :func:`.instances.scene_arrays`, read once
-per scene; only the camera's view test is computed per request, over all instances at once.
+per scene; only the camera's view test and what it sees of the receivers (:class:`Seen`) are
+computed per request, over all instances at once.
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .culling import boxes_in_view
+from .culling import view_planes
+from .geometry import aabbs_against_frustum, clip_boxes
 from .instances import Planes, scene_arrays
 
 if TYPE_CHECKING:  # the camera imports this package: types only, no import cycle
@@ -40,6 +42,52 @@ def _pow2_at_least(x: float, lo: int, hi: int) -> int:
     return int(min(hi, 2 ** math.ceil(math.log2(x))))
 
 
+def _visible_receivers(in_view: np.ndarray, receive: np.ndarray, optimize: bool) -> np.ndarray:
+    """Indices of the receivers the camera may see; without ``optimize``, all receivers when it
+    sees none."""
+    rec = np.flatnonzero(in_view & receive)
+    if len(rec) == 0 and not optimize:
+        rec = np.flatnonzero(receive)
+    return rec
+
+
+@dataclass(frozen=True)
+class Seen:
+    """What the camera can see of its receivers: the parts of their boxes inside its frustum.
+
+    A shadow map need cover only these parts: every receiver point drawn by the camera pass lies
+    in one. Their extent along any direction (a light's lateral window, its deepest receiver) and
+    the extremes of a point's slopes or Chebyshev distance from a light are reached at the boxes
+    of ``whole`` or at ``points`` (:func:`.geometry.clip_boxes`).
+
+    Attributes
+    ----------
+    whole : ndarray, shape (W,), int
+        Receivers whose whole box lies inside the frustum; when the camera sees no part of any
+        receiver (its view test is conservative), every receiver that matters, as a fallback.
+    points : ndarray, shape (M, 3)
+        The vertices of the other receivers' boxes clipped to the frustum (origin-relative).
+    """
+
+    whole: np.ndarray
+    points: np.ndarray
+
+    @classmethod
+    def clip(cls, bounds: np.ndarray, receivers: np.ndarray, whole: np.ndarray,
+             planes: np.ndarray, frustum_corners: np.ndarray) -> Seen:
+        """The receivers' boxes clipped to the view frustum (``planes``, ``frustum_corners``);
+        ``whole`` (N,) marks the boxes wholly inside it."""
+        inside = whole[receivers]
+        boxes = bounds[receivers[~inside]]
+        # Rounding tolerance: a part may come out larger by a billionth of the view's span.
+        scale = max(float(np.max(np.abs(frustum_corners))),
+                    float(np.max(np.abs(boxes), initial=0.0)))
+        points = clip_boxes(boxes, planes, frustum_corners, 1e-9 * scale)
+        if not inside.any() and len(points) == 0:
+            inside = np.ones(len(receivers), bool)
+        return cls(whole=_frozen(receivers[inside]), points=_frozen(points))
+
+
 @dataclass(frozen=True)
 class PlanContext:
     """What one request's light fits share; positions relative to ``origin``.
@@ -62,6 +110,8 @@ class PlanContext:
         The largest side of any instance box.
     in_view : ndarray, shape (N,), bool
         Boxes the camera may see.
+    seen : Seen
+        What the camera sees of the receivers of :meth:`receivers`.
     cam_pos : ndarray, shape (3,)
     frustum_corners : ndarray, shape (8, 3)
         The camera's view frustum.
@@ -84,6 +134,7 @@ class PlanContext:
     planes: Planes
     extent: float
     in_view: np.ndarray
+    seen: Seen
     cam_pos: np.ndarray
     frustum_corners: np.ndarray
     pixel_per_distance: float
@@ -98,6 +149,10 @@ class PlanContext:
         arrays = scene_arrays(scene)  # shared by every request on this scene: read-only
         rel = arrays.relative(origin)
         shadow = params.shadows
+        planes = view_planes(camera, origin)
+        frustum_corners = _frozen(camera.frustum_corners() - origin)
+        in_view, whole = aabbs_against_frustum(rel.bounds, planes, frustum_corners)
+        receivers = _visible_receivers(in_view, arrays.receive, params.optimize)
         return cls(
             camera=camera,
             params=params,
@@ -109,9 +164,10 @@ class PlanContext:
             receive=arrays.receive,
             planes=rel.planes,
             extent=rel.extent,
-            in_view=_frozen(boxes_in_view(rel.bounds, camera, origin)),
+            in_view=_frozen(in_view),
+            seen=Seen.clip(rel.bounds, receivers, whole, planes, frustum_corners),
             cam_pos=_frozen(camera.pose[:3, 3] - origin),
-            frustum_corners=_frozen(camera.frustum_corners() - origin),
+            frustum_corners=frustum_corners,
             pixel_per_distance=2 * math.tan(camera.yfov / 2) / camera.height * AUTO_TEXEL_PIXELS,
             max_size=shadow.max_map_size,
             margin_texels=(shadow.pcf_kernel // 2 if shadow.filter == "pcf" else 0) + 2,
@@ -127,10 +183,7 @@ class PlanContext:
         Without ``optimize``, all receivers when it sees none (the map then exists but changes
         nothing on screen).
         """
-        rec = np.flatnonzero(self.in_view & self.receive)
-        if len(rec) == 0 and not self.optimize:
-            rec = np.flatnonzero(self.receive)
-        return rec
+        return _visible_receivers(self.in_view, self.receive, self.optimize)
 
     def map_size(self, needed: float, cube: bool = False) -> int:
         """The request's map size, or for 'auto' the power of two giving ``needed`` texels.

@@ -35,10 +35,15 @@ def boxes_in_view(bounds: np.ndarray, camera: Camera, origin: np.ndarray) -> np.
     -------
     ndarray, shape (N,), bool
     """
+    return aabbs_in_frustum(bounds, view_planes(camera, origin), camera.frustum_corners() - origin)
+
+
+def view_planes(camera: Camera, origin: np.ndarray) -> np.ndarray:
+    """The camera frustum's six unit-normal planes (:func:`.geometry.frustum_planes`), relative
+    to ``origin``, shape (6, 4)."""
     pose = camera.pose.copy()
     pose[:3, 3] -= origin
-    view_proj = camera.projection @ np.linalg.inv(pose)
-    return aabbs_in_frustum(bounds, frustum_planes(view_proj), camera.frustum_corners() - origin)
+    return frustum_planes(camera.projection @ np.linalg.inv(pose))
 
 
 # Directions whose most extreme receivers are tried first as witnesses that a plane has a

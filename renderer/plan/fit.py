@@ -1,7 +1,8 @@
 """Shadow frusta, one way per kind of light, each in two pure steps.
 
-``reach_*`` finds the light's region over the visible receivers: which boxes lie inside it, how
-near each is to the light, how deep the receivers go. The plan then chooses the casters from that
+``reach_*`` finds the light's region over what the camera sees of the receivers (their boxes
+clipped to the view frustum, :class:`~.context.Seen`): which boxes lie inside it, how near each
+is to the light, how deep the seen receivers go. The plan then chooses the casters from that
 (:func:`~.culling.select_casters`, the same for every kind), and ``fit_*`` tightens the region to
 those casters and sizes the map: an orthographic box for directional lights, as in the
 packed-depth blog; an off-axis perspective frustum for spot lights; six cube faces for point
@@ -142,32 +143,35 @@ class DirectionalReach(Reach):
 
 
 def reach_directional(ctx: PlanContext, s: Subject) -> DirectionalReach:
-    """The light-view column over the seen receivers, clipped laterally and in depth to what the
-    camera frustum can show."""
-    rec = s.receivers
+    """The light-view column over what the camera sees of the receivers: their boxes clipped to
+    the camera frustum (:class:`~.context.Seen`), laterally and in depth."""
     view = np.linalg.inv(pose_from_direction(np.zeros(3), s.light.direction))
     lc = transform_points(view, ctx.corners)  # (N, 8, 3) light view
     lo = corner_min(lc)
     hi = corner_max(lc)
-    # Lateral region: the visible receivers, clipped to what the camera frustum can show.
-    r_lo, r_hi = lo[rec].min(axis=0), hi[rec].max(axis=0)
-    f = transform_points(view, ctx.frustum_corners)
-    x0, y0 = np.maximum(r_lo[:2], f.min(axis=0)[:2])
-    x1, y1 = np.minimum(r_hi[:2], f.max(axis=0)[:2])
-    if x1 <= x0 or y1 <= y0:
-        x0, y0 = r_lo[:2]
-        x1, y1 = r_hi[:2]
-    # Receiver depth range (light depth is -z), no deeper than the camera can see.
-    far = float(min(-r_lo[2], -f.min(axis=0)[2]))
+    # A directional shadow falls straight along the light: a receiver point is shadowed only by
+    # casters over it laterally and nearer the light. The window holds every seen receiver point.
+    seen = _seen_light_points(ctx, view)
+    whole = ctx.seen.whole
+    r_lo = np.minimum(lo[whole].min(axis=0, initial=np.inf), seen.min(axis=0, initial=np.inf))
+    r_hi = np.maximum(hi[whole].max(axis=0, initial=-np.inf), seen.max(axis=0, initial=-np.inf))
+    x0, y0 = r_lo[:2]
+    x1, y1 = r_hi[:2]
+    far = float(-r_lo[2])  # the deepest seen receiver point (light depth is -z)
     in_frustum = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
     return DirectionalReach(in_frustum=in_frustum, depth_min=-hi[:, 2], far=far, view=view,
                             lo=lo, hi=hi, window=(x0, y0, x1, y1))
 
 
+def _seen_light_points(ctx: PlanContext, view: np.ndarray) -> np.ndarray:
+    """The vertices of the receivers' clipped parts (:attr:`Seen.points`) in light view, (M, 3)."""
+    return transform_points(view, ctx.seen.points)
+
+
 def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
                     fit: np.ndarray) -> Fit | Skip:
     """An orthographic box: the window narrowed to the casters' lateral extent, from the nearest
-    caster to the farthest receiver, padded by the filter margin."""
+    caster to the farthest seen receiver point, padded by the filter margin."""
     x0, y0, x1, y1 = reach.window
     # A directional shadow falls straight along the light: only where casters are, laterally.
     x0, y0 = np.maximum([x0, y0], reach.lo[fit, :2].min(axis=0))
@@ -179,6 +183,9 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
     size = ctx.map_size_for(extent, s.receivers)
     pad = ctx.margin(extent, size)
     x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
+    # The deepest seen receiver point is the window's exact bound (no box beyond it any more):
+    # filter taps read the margin past it in depth too.
+    far += pad
     # A little depth slack so that the nearest caster and farthest receiver are not clipped.
     span = max(far - near, 1e-300)
     near, far = near - span * 1e-3, far + span * 1e-3
@@ -205,18 +212,20 @@ class SpotReach(Reach):
 
 
 def reach_spot(ctx: PlanContext, s: Subject) -> SpotReach | Skip:
-    """The pyramid from the light over the receivers inside its cone; a skip when every
-    receiver is behind the light or outside the cone."""
-    rec = s.receivers
+    """The pyramid from the light over what the camera sees of the receivers inside its cone; a
+    skip when all of it is behind the light or outside the cone."""
     view = np.linalg.inv(pose_from_direction(s.position, s.light.direction))
     lc = transform_points(view, ctx.corners)
     depth = -lc[..., 2]  # (N, 8)
     tan_cone = math.tan(s.light.outer_cone)
-    far = float(depth[rec].max())
+    # What the camera sees of the receivers (:class:`~.context.Seen`): a receiver point is
+    # shadowed only by casters on its ray from the light, so the frustum holds their slopes and
+    # depths, reached at these points.
+    rc = np.concatenate([lc[ctx.seen.whole].reshape(-1, 3), _seen_light_points(ctx, view)])
+    far = float(-rc[:, 2].min())
     if far <= 0:
-        return Skip("no_visible_receiver")  # every receiver is behind the light
+        return Skip("no_visible_receiver")  # every seen receiver point is behind the light
     # Receivers inside the cone's bounding pyramid: fit the frustum to their angular extent.
-    rc = lc[rec].reshape(-1, 3)
     if np.all(-rc[:, 2] > 0):
         ang = rc[:, :2] / (-rc[:, 2:3])
         a_lo = np.maximum(ang.min(axis=0), -tan_cone)
@@ -282,7 +291,10 @@ def reach_cube(ctx: PlanContext, s: Subject) -> CubeReach | Skip:
     # depth on the face that sees it is at least that.
     gap = np.maximum(np.maximum(ctx.bounds[:, 0] - position, position - ctx.bounds[:, 1]), 0)
     depth_min = gap.max(axis=1)
-    far = float(cheb[s.receivers].max()) * 1.001
+    # The farthest seen receiver point (:class:`~.context.Seen`; Chebyshev distance is convex,
+    # so a clipped part's farthest point is one of its vertices).
+    seen = np.abs(ctx.seen.points - position).max(axis=1, initial=0.0)
+    far = max(float(cheb[ctx.seen.whole].max(initial=0.0)), float(seen.max(initial=0.0))) * 1.001
     face_views = cube_face_views(position)
     cone_cos = math.cos(light.outer_cone) if light.type == "spot" else -1.0
     faces: list[int] = []

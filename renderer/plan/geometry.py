@@ -301,11 +301,11 @@ def aabbs_in_frustum(bounds: np.ndarray, planes: np.ndarray,
                      frustum_corners: np.ndarray | None = None) -> np.ndarray:
     """:func:`boxes_in_frustum` for axis-aligned boxes: the same result, far fewer operations.
 
-    A box is outside a plane when its corner farthest along the plane's normal is. That corner's
-    distance comes from the box's centre and half-size, O(N P) work instead of the O(8 N P) of
-    testing every corner. Where it lies within a rounding bound of zero (a box touching the
-    plane, to ~1e-14 of the scene's size) the box is tested corner by corner as in
-    :func:`boxes_in_frustum`, so that the answer is the corner test's in every case.
+    A box is outside a plane when its corner farthest along the plane's normal is. That corner
+    takes per axis the box's min or max by the sign of the normal, O(N P) work instead of the
+    O(8 N P) of testing every corner. Where its distance lies within a rounding bound of zero (a
+    box touching the plane, to ~1e-14 of the scene's size) the box is tested corner by corner as
+    in :func:`boxes_in_frustum`, so that the answer is the corner test's in every case.
 
     Parameters
     ----------
@@ -319,27 +319,139 @@ def aabbs_in_frustum(bounds: np.ndarray, planes: np.ndarray,
     ndarray, shape (N,), bool
         Equal to ``boxes_in_frustum(box_corners(bounds), planes, frustum_corners)``.
     """
+    return aabbs_against_frustum(bounds, planes, frustum_corners)[0]
+
+
+def aabbs_against_frustum(bounds: np.ndarray, planes: np.ndarray,
+                          frustum_corners: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`aabbs_in_frustum`, and which boxes lie wholly inside every plane.
+
+    Returns
+    -------
+    inside : ndarray, shape (N,), bool
+        The result of :func:`aabbs_in_frustum`.
+    whole : ndarray, shape (N,), bool
+        Boxes whose nearest corner to each plane is on its inside (by the rounded distance: a
+        box touching a plane from inside may be left out; see :func:`clip_boxes`).
+    """
     lo, hi = bounds[:, 0], bounds[:, 1]  # (N, 3)
     n, w = planes[:, :3], planes[:, 3]  # (P, 3), (P,)
     size = np.abs(n)
-    # The farthest corner's distance, (N, P): centre . n + half . |n| + w.
-    far = thin_matmul(np.concatenate([(lo + hi) / 2, (hi - lo) / 2], axis=1),
-                      np.concatenate([n, size], axis=1).T)
-    far += w
-    # One rounding bound per plane, from the largest coordinate of any box.
-    scale = float(np.max(np.abs(bounds), initial=0.0)) * size.sum(axis=1) + np.abs(w)
-    near_zero = np.abs(far) <= _AABB_FILTER_ULPS * scale
-    outside = np.any((far < 0) & ~near_zero, axis=1)
-    unsure = np.flatnonzero(np.any(near_zero, axis=1) & ~outside)
+    p = len(planes)
+    # The farthest and the nearest corner's distance, (N, 2P): per axis the max or min corner by
+    # the sign of the normal, from the rows (min, max) of the boxes as they lie in memory.
+    pos, neg = np.maximum(n, 0).T, np.minimum(n, 0).T  # (3, P)
+    d = thin_matmul(np.ascontiguousarray(bounds, np.float64).reshape(-1, 6),
+                    np.block([[neg, pos], [pos, neg]]))
+    d += np.concatenate([w, w])
+    far = d[:, :p]
+    whole = corner_min(d[:, p:]) >= 0
+    # One rounding bound per plane, from the largest coordinate of any box. Reductions over the
+    # few planes go column by column (corner_min, corner_max): numpy reduces a short last axis
+    # several times slower.
+    bound = _AABB_FILTER_ULPS * (float(np.max(np.abs(bounds), initial=0.0)) * size.sum(axis=1)
+                                 + np.abs(w))
+    outside = corner_max(far < -bound)  # beyond a plane by more than the rounding bound
+    unsure = np.flatnonzero(corner_max(np.abs(far) <= bound) & ~outside)
     if len(unsure):  # the corner test itself, on the few boxes that touch a plane
-        d = box_corners(bounds[unsure]) @ planes[:, :3].T + planes[:, 3]  # (U, 8, P)
-        outside[unsure] = np.any(corner_max(d) < 0, axis=1)
+        c = box_corners(bounds[unsure]) @ planes[:, :3].T + planes[:, 3]  # (U, 8, P)
+        outside[unsure] = np.any(corner_max(c) < 0, axis=1)
     inside = ~outside
     if frustum_corners is not None:
         # The corners' bounding box is the box itself: its min and max corner.
         f_lo, f_hi = frustum_corners.min(axis=0), frustum_corners.max(axis=0)
-        inside &= np.all((hi >= f_lo) & (lo <= f_hi), axis=1)
-    return inside
+        inside &= corner_min((hi >= f_lo) & (lo <= f_hi))
+    return inside, whole & inside
+
+
+# The 12 edges of a hexahedron whose 8 corners are numbered by three bits, one per direction
+# (:func:`box_corners`, :meth:`Camera.frustum_corners`): corners that differ in one bit.
+HEX_EDGES = np.array([(i, i | b) for b in (4, 2, 1) for i in range(8) if not i & b], np.intp)
+HEX_EDGES.flags.writeable = False
+# Boxes that :func:`clip_boxes` clips one by one (the largest first); the others are clipped
+# together, as their common bounding box.
+MAX_CLIPPED_BOXES = 4096
+
+
+def clip_boxes(bounds: np.ndarray, planes: np.ndarray, hull: np.ndarray,
+               tol: float) -> np.ndarray:
+    """The parts of boxes inside a convex hexahedron (a view frustum), as points.
+
+    The part of a box inside the hull is the convex polytope ``box ∩ hull``; its extent along any
+    direction, and the extreme of any convex or linear-fractional function over it, is reached
+    at one of its vertices. Those are among the box corners inside the hull, the hull corners
+    inside the box, and the crossings of each one's edges with the other's faces; all are found
+    at once, O(R) work for R boxes. A box wholly outside gives no point, one wholly inside its
+    own corners (callers pass on those boxes whole: :func:`aabbs_against_frustum`).
+
+    Parameters
+    ----------
+    bounds : ndarray, shape (R, 2, 3)
+        Min and max corner of each box.
+    planes : ndarray, shape (P, 4)
+        The hull's unit-normal planes, inside where ``a x + b y + c z + d >= 0``
+        (:func:`frustum_planes`).
+    hull : ndarray, shape (8, 3)
+        The hull's corners, numbered as :data:`HEX_EDGES` expects.
+    tol : float
+        Distance within which a point counts as inside a plane or a box (rounding): the parts
+        come out at most this much larger, never smaller.
+
+    Returns
+    -------
+    ndarray, shape (M, 3)
+        The vertices of the boxes' parts inside the hull, all boxes together. Past
+        :data:`MAX_CLIPPED_BOXES` boxes, the smaller ones are clipped together as their common
+        bounding box (a larger part, never a smaller one).
+    """
+    if len(bounds) > MAX_CLIPPED_BOXES:
+        size = np.max(bounds[:, 1] - bounds[:, 0], axis=1)
+        order = np.argsort(-size, kind="stable")
+        own, rest = order[:MAX_CLIPPED_BOXES], order[MAX_CLIPPED_BOXES:]
+        common = np.stack([bounds[rest, 0].min(axis=0), bounds[rest, 1].max(axis=0)])
+        bounds = np.concatenate([bounds[own], common[None]])
+    return _clip_straddling(bounds, planes, hull, tol)
+
+
+def _clip_straddling(boxes: np.ndarray, planes: np.ndarray, hull: np.ndarray,
+                     tol: float) -> np.ndarray:
+    """The vertices (M, 3) of ``box ∩ hull`` for boxes (S, 2, 3), every box on its own (see
+    :func:`clip_boxes`)."""
+    if len(boxes) == 0:
+        return np.zeros((0, 3))
+    n, w = planes[:, :3], planes[:, 3]
+    lo, hi = boxes[:, 0], boxes[:, 1]  # (S, 3)
+    corners = box_corners(boxes)  # (S, 8, 3)
+    d = corners @ n.T + w  # (S, 8, P)
+    out = [corners[np.all(d >= -tol, axis=2)]]
+    # Hull corners inside each box.
+    inside = np.all((hull >= lo[:, None] - tol) & (hull <= hi[:, None] + tol), axis=2)  # (S, 8)
+    out.append(hull[np.nonzero(inside)[1]])
+    e0, e1 = HEX_EDGES[:, 0], HEX_EDGES[:, 1]
+    # Box edges crossing a hull plane (endpoints strictly on either side), inside the others.
+    d0, d1 = d[:, e0], d[:, e1]  # (S, 12, P)
+    s, e, k = np.nonzero(((d0 < 0) & (d1 > 0)) | ((d0 > 0) & (d1 < 0)))
+    t = d0[s, e, k] / (d0[s, e, k] - d1[s, e, k])
+    a = corners[s, e0[e]]
+    p = a + t[:, None] * (corners[s, e1[e]] - a)
+    out.append(p[np.all(p @ n.T + w >= -tol, axis=1)])
+    # Hull edges crossing a box face (a plane x_j = lo_j or hi_j), inside the box's other sides:
+    # only the (box, edge) pairs whose bounding boxes meet.
+    q0, q1 = hull[e0], hull[e1]  # (12, 3)
+    q_lo, q_hi = np.minimum(q0, q1), np.maximum(q0, q1)
+    meet = np.all((q_lo <= hi[:, None] + tol) & (q_hi >= lo[:, None] - tol), axis=2)  # (S, 12)
+    s, e = np.nonzero(meet)
+    face = boxes[s].transpose(0, 2, 1)  # (K, 3, 2): per axis, the lo and hi face
+    a, dq = q0[e], q1[e] - q0[e]  # (K, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (face - a[:, :, None]) / dq[:, :, None]  # (K, 3, 2)
+    # A division by 0 (an edge parallel to the face) gives inf or nan: no crossing.
+    i, j, side = np.nonzero((t >= 0) & (t <= 1))
+    p = a[i] + t[i, j, side][:, None] * dq[i]
+    p[np.arange(len(p)), j] = face[i, j, side]  # on the face exactly
+    out.append(p[np.all((p >= lo[s[i]] - tol) & (p <= hi[s[i]] + tol), axis=1)])
+    return np.concatenate(out)
 
 
 def pyramid_planes(a_lo: np.ndarray, a_hi: np.ndarray) -> np.ndarray:
