@@ -343,12 +343,9 @@ class GpuScene:
             In the order in which ``instances`` first reach each group; ``slots`` (intp) in the
             order of ``instances``. ``flag`` is False without ``split``.
         """
-        inst = np.asarray(instances, dtype=np.intp).reshape(-1)
+        inst, key = self._group_keys(instances, split)
         if not len(inst):
             return []
-        key = self.prim_of[inst] * 2
-        if split is not None:
-            key = key + split[inst]
         order = np.argsort(key, kind="stable")
         k = key[order]
         cut = np.flatnonzero(k[1:] != k[:-1]) + 1
@@ -361,16 +358,23 @@ class GpuScene:
                 for a, b in zip(heads[by_first].tolist(), bounds[1:][by_first].tolist(),
                                 strict=True)]
 
+    def _group_keys(self, instances: npt.ArrayLike, split: np.ndarray | None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Scene instance indices as an array, and each one's group key: its GPU primitive
+        times two, plus its ``split`` flag."""
+        inst = np.asarray(instances, dtype=np.intp).reshape(-1)
+        key = self.prim_of[inst] * 2
+        if split is not None:
+            key = key + split[inst]
+        return inst, key
+
     def runs(self, instances: npt.ArrayLike, split: np.ndarray | None = None
              ) -> list[tuple[int, bool, np.ndarray]]:
         """Like :meth:`groups`, but keeping the order of ``instances``: one group for each
         stretch of consecutive instances of one GPU primitive (and flag)."""
-        inst = np.asarray(instances, dtype=np.intp).reshape(-1)
+        inst, key = self._group_keys(instances, split)
         if not len(inst):
             return []
-        key = self.prim_of[inst] * 2
-        if split is not None:
-            key = key + split[inst]
         cut = np.flatnonzero(key[1:] != key[:-1]) + 1
         bounds = np.concatenate([[0], cut, [len(key)]]).tolist()
         slots = self.slot[inst]
