@@ -1,7 +1,8 @@
-"""FastAPI dependencies: settings, the GL worker, and the parsed render input."""
+"""FastAPI dependencies: settings, the render supervisor, and the parsed render input."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ from shadowmap.renderer.params import EXAMPLE_PARAMS
 
 from .errors import ServiceError
 from .settings import Settings
+from .supervisor import Supervisor
 from .upload import (
     GLB_MAGIC,
     RAW_SCENE_TYPES,
@@ -30,7 +32,6 @@ from .upload import (
     read_limited,
     scene_upload,
 )
-from .worker import RenderWorker
 
 FORM_PARTS = ("scene", "params")
 
@@ -39,7 +40,7 @@ def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_worker(request: Request) -> RenderWorker:
+def get_worker(request: Request) -> Supervisor:
     worker = getattr(request.app.state, "worker", None)
     if worker is None:
         raise ServiceError(503, "unavailable", "the renderer is not running",
@@ -48,7 +49,7 @@ def get_worker(request: Request) -> RenderWorker:
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
-WorkerDep = Annotated[RenderWorker, Depends(get_worker)]
+WorkerDep = Annotated[Supervisor, Depends(get_worker)]
 
 
 @lru_cache(maxsize=1)
@@ -123,12 +124,21 @@ async def read_render_input(
     t0 = time.perf_counter()
     limit = settings.max_upload_bytes
     check_content_length(request.headers.get("content-length"), limit)
+    deadline = settings.upload_timeout
     try:
-        body = await read_limited(request.stream(), limit)
+        # One deadline for the whole body, not per chunk: a client trickling a byte at a time
+        # would otherwise hold its connection (and the bytes so far) for ever.
+        async with asyncio.timeout(deadline):
+            body = await read_limited(request.stream(), limit)
     except ClientDisconnect:
         # Nobody is left to answer; a 4xx keeps it out of the error log.
         raise ServiceError(400, "client_disconnected",
                            "the client left during the upload") from None
+    except TimeoutError:
+        # The rest of the body may still come: close the connection rather than read it.
+        raise ServiceError(408, "upload_timeout", f"the request body did not arrive within "
+                           f"{deadline:g} s", limit="upload_timeout",
+                           headers={"Connection": "close"}) from None
     media = _media_type(request)
 
     scene: tuple[bytes, str | None, str | None] | None = None  # data, filename, declared kind

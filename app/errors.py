@@ -9,7 +9,7 @@ exception                    status  ``error``
 ``UnsupportedExtension``     422     ``unsupported_extension`` (plus ``extensions``)
 ``UnsupportedVersion``       422     ``unsupported_version`` (plus ``field``)
 ``SceneError`` (any other)   400     ``invalid_scene``
-``RequestError``             422     ``invalid_request``
+``RequestError``             422     ``invalid_request`` (plus ``errors``)
 ``LimitError``               422     ``limit_exceeded`` (plus ``limit``)
 pydantic ``ValidationError`` 422     ``invalid_params`` (plus ``errors``)
 ``ReferenceUnavailable``     501     ``reference_unavailable``
@@ -136,7 +136,8 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestError)
     async def _request(request: Request, exc: RequestError) -> JSONResponse:
-        return error_response(422, "invalid_request", str(exc))
+        # Params that did not validate in the library keep pydantic's list of errors.
+        return error_response(422, "invalid_request", str(exc), errors=exc.errors or None)
 
     @app.exception_handler(LimitError)
     async def _limit(request: Request, exc: LimitError) -> JSONResponse:

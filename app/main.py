@@ -1,20 +1,26 @@
-"""The HTTP service: app factory, lifespan (the GL worker) and the ``serve`` entry point.
+"""The HTTP service: app factory, lifespan (the render worker) and the ``serve`` entry point.
 
 Run it with ``shadowmap serve`` (which calls :func:`run`), or directly::
 
     uvicorn --factory shadowmap.app.main:create_app --port 8000
 
 Settings come from ``SHADOWMAP_*`` environment variables, see
-:class:`shadowmap.app.settings.Settings`.
+:class:`shadowmap.app.settings.Settings`. Those of the HTTP server itself (``keep_alive_timeout``,
+``limit_concurrency``, ``shutdown_timeout``) are applied by :func:`run`; with the ``uvicorn``
+command give them as its own options (``--timeout-keep-alive``, ``--limit-concurrency``,
+``--timeout-graceful-shutdown``).
 The GL platform is chosen by ``PYOPENGL_PLATFORM`` (``egl`` or ``osmesa``; probed when unset).
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import os
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
@@ -30,7 +36,7 @@ from .encode import RenderJSON
 from .errors import install_handlers
 from .routes import health, page, render
 from .settings import Settings
-from .worker import RenderWorker
+from .supervisor import Supervisor
 
 log = logging.getLogger("shadowmap.app")
 
@@ -56,18 +62,21 @@ def _setup_logging() -> None:
 
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-    """Start this process's GL thread before serving; stop it on shutdown."""
+    """Start this process's render worker before serving; stop it on shutdown."""
     _setup_logging()
     settings: Settings = app.state.settings
-    worker = RenderWorker(settings)
-    await run_in_threadpool(worker.start)  # blocks until the GL context exists (or fails)
-    await run_in_threadpool(demo_upload)  # build the demo scene once, before the first request
-    app.state.worker = worker
+    # The demo scene: built once, before the first request, and each worker's warm-up render.
+    demo = await run_in_threadpool(demo_upload)
+    supervisor = Supervisor(settings, warmup_scene=demo.data)
+    await run_in_threadpool(supervisor.start)  # blocks until the worker is ready (or fails)
+    app.state.worker = supervisor
     try:
         yield
     finally:
         app.state.worker = None
-        await run_in_threadpool(worker.close)
+        # The server has already given running requests shutdown_timeout: a render still
+        # running now is killed at once.
+        await run_in_threadpool(supervisor.close)
 
 
 class ServerTimingMiddleware:
@@ -123,7 +132,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="shadowmap-service", version=__version__,
                   description=DESCRIPTION, lifespan=lifespan)
     app.state.settings = settings or Settings()
-    app.state.worker = None
+    app.state.worker = None  # the Supervisor, while the lifespan runs
     install_handlers(app)
     app.add_middleware(ServerTimingMiddleware)
     app.include_router(render.router)
@@ -134,8 +143,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
-        log_level: str = "info") -> None:
-    """Serve with uvicorn; each of ``workers`` processes has its own GL thread and queue.
+        log_level: str = "info", **overrides: Any) -> None:
+    """Serve with uvicorn; each of ``workers`` processes has its own render worker and queue.
 
     Parameters
     ----------
@@ -145,11 +154,90 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
         Processes (not threads): a GL context serves one render at a time, so this is how a
         machine with several cores renders in parallel.
     log_level : str
+    **overrides
+        Settings by field name (e.g. ``shutdown_timeout=5``). They are exported as
+        ``SHADOWMAP_*`` environment variables, which is how the app in every server process
+        reads them.
+
+    Raises
+    ------
+    TypeError
+        An override that is not a setting.
+    pydantic.ValidationError
+        A setting (from the environment or ``overrides``) out of range.
     """
     import uvicorn
 
+    for name, value in overrides.items():
+        if name not in Settings.model_fields:
+            raise TypeError(f"run() got an unknown setting {name!r}")
+        if value is not None:
+            os.environ[f"SHADOWMAP_{name.upper()}"] = str(value)
+    settings = Settings()  # validated here, so a bad value fails before anything starts
     uvicorn.run("shadowmap.app.main:create_app", factory=True, host=host, port=port,
-                workers=workers if workers > 1 else None, log_level=log_level)
+                workers=workers if workers > 1 else None, log_level=log_level,
+                timeout_keep_alive=settings.keep_alive_timeout,
+                limit_concurrency=settings.limit_concurrency,
+                # Typed int, used as a float (asyncio.wait_for's timeout).
+                timeout_graceful_shutdown=settings.shutdown_timeout,  # type: ignore[arg-type]
+                http=_http_protocol())
+
+
+def _http_protocol() -> type[asyncio.Protocol] | str:
+    """uvicorn's httptools protocol with a deadline on the request head, when it is installed."""
+    return HeadDeadlineProtocol if HeadDeadlineProtocol is not None else "auto"
+
+
+try:
+    from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+except ImportError:  # no httptools (or no uvicorn): the server's own protocol, without it
+    HeadDeadlineProtocol = None
+else:
+
+    class HeadDeadlineProtocol(HttpToolsProtocol):  # type: ignore[no-redef]
+        """Closes a connection that has not sent a whole request head ``timeout_keep_alive``
+        seconds after it opened or after its last response.
+
+        uvicorn's own keep-alive timer starts only after a first response and stops at the
+        first byte, so a connection that never sends anything, or sends its headers a byte at a
+        time, would hold one of the ``limit_concurrency`` places for ever.
+        """
+
+        _head_timer: asyncio.TimerHandle | None = None
+
+        def _arm_head_timer(self) -> None:
+            self._cancel_head_timer()
+            self._head_timer = self.loop.call_later(self.timeout_keep_alive, self._head_late)
+
+        def _cancel_head_timer(self) -> None:
+            if self._head_timer is not None:
+                self._head_timer.cancel()
+                self._head_timer = None
+
+        def _head_late(self) -> None:
+            self._head_timer = None
+            if not self.transport.is_closing():
+                self.transport.close()
+
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            super().connection_made(transport)
+            self._arm_head_timer()
+
+        def on_headers_complete(self) -> None:
+            self._cancel_head_timer()
+            super().on_headers_complete()
+
+        def on_response_complete(self) -> None:
+            # A pipelined request (started by super() below) already has its head and must
+            # not be timed; otherwise the next request must send its head in time.
+            pipelined = bool(self.pipeline)
+            super().on_response_complete()
+            if not pipelined and not self.transport.is_closing():
+                self._arm_head_timer()
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._cancel_head_timer()
+            super().connection_lost(exc)
 
 
 def __getattr__(name: str) -> FastAPI:

@@ -1,269 +1,345 @@
-"""The GL thread: one renderer per process, fed through a bounded queue.
+"""The render worker process: one GL context, fed by the supervisor over a pipe.
 
-A GL context belongs to the thread that created it, so each service process runs one dedicated
-thread that creates the :class:`shadowmap.renderer.Renderer`, which parses scenes (keeping the
-last few by content hash) and renders them one at a time. Async routes submit a job and await its
-``concurrent.futures.Future``; the event loop never blocks on GL work.
+This module is the child's side of :mod:`shadowmap.app.supervisor`. The supervisor starts
+:func:`worker_main` in a fresh interpreter (multiprocessing's ``spawn`` context: nothing of the
+server's threads or GL state is inherited) and talks to it with picklable messages:
 
-A GL call cannot be interrupted. When a request's time limit passes while its render is running,
-the request is answered (504) but the render runs to its end and its result is dropped; a job
-whose limit passes while it still waits in the queue is cancelled and never runs.
+========================================  ==========================================================
+from the server                           answer
+========================================  ==========================================================
+``("render", RenderTask)``                ``("started", job_id)`` at once, then
+                                          ``("done", job_id, RenderReply)`` or
+                                          ``("error", job_id, ErrorPayload, fatal)``
+``("stop",)`` or the pipe closing         the process releases GL and exits
+========================================  ==========================================================
+
+and, once at start, ``("ready", WorkerReady)`` or ``("failed", message)``.
+
+The child renders *and* encodes: a render's arrays (a 4096² visibility buffer of 8 lights is
+512 MB of float32) never cross the pipe or enter the server process, only the response body
+does. Parsed scenes and GPU uploads stay cached by content hash between renders, as long as the
+process lives.
+
+A GL call cannot be interrupted; this process can. That is the time limit: the supervisor
+kills the whole process when a render runs past ``render_timeout`` and starts a fresh one.
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
-import math
-import queue
-import threading
+import os
+import pickle
+import signal
 import time
-from concurrent.futures import Future
 from dataclasses import dataclass, field
+from importlib import import_module
+from multiprocessing.connection import Connection
+from typing import Any
 
-from shadowmap.renderer import Renderer, RenderError, RenderParams, RenderResult
+from shadowmap.renderer import Renderer, RenderError, RenderParams, ShadowMapError
+from shadowmap.renderer.limits import Limits
 
-from .errors import ServiceError
-from .settings import Settings
-from .upload import SceneUpload
+log = logging.getLogger("shadowmap.app.worker")
 
-log = logging.getLogger("shadowmap.app")
+#: Side of the warm-up renders made before the worker reports ready: small, since they exist to
+#: compile the shaders (about a second on llvmpipe) rather than on a client's first request.
+WARMUP_SIZE = (64, 48)
 
-_STOP = object()
+
+@dataclass(frozen=True)
+class WorkerConfig:
+    """What a worker process needs to build its renderer (sent once, at start).
+
+    Attributes
+    ----------
+    limits : Limits
+    cache_bytes : int
+        ``gpu_cache_bytes`` of the settings.
+    cache_entries : int
+        ``scene_cache_entries`` of the settings.
+    warmup_scene : bytes or None
+        A ``.glb`` rendered (twice, small) before the worker reports ready, or None for no
+        warm-up.
+    warmup_params : dict
+        RenderParams fields of the warm-up render.
+    log_level : int
+    """
+
+    limits: Limits
+    cache_bytes: int
+    cache_entries: int
+    warmup_scene: bytes | None = None
+    warmup_params: dict = field(default_factory=dict)
+    log_level: int = logging.INFO
+
+
+@dataclass(frozen=True)
+class WorkerReady:
+    """The worker's first message: it has a GL context and is waiting for renders.
+
+    Attributes
+    ----------
+    pid : int
+    info : dict of str to str
+        GL platform, renderer and version.
+    warm_seconds : float or None
+        Seconds of the second (shaders already compiled) warm-up render; the supervisor's first
+        cost estimate. None without a warm-up.
+    """
+
+    pid: int
+    info: dict[str, str]
+    warm_seconds: float | None
 
 
 @dataclass
-class RenderJob:
-    """One render request on its way through the queue."""
+class RenderTask:
+    """One render, as sent to the worker.
 
-    upload: SceneUpload
+    Attributes
+    ----------
+    job_id : int
+    data : bytes
+        The ``.glb`` or ``.gltf`` file.
+    file_type : str
+    resources : dict of str to bytes
+    params : RenderParams
+    media : str
+        The response format, one of :data:`shadowmap.app.encode.FORMATS`.
+    outputs : list of str
+        The outputs the client asked for (a PNG response encodes only the colour image).
+    before : dict of str to float
+        Seconds of the stages before the worker (read, queue), for ``Server-Timing``.
+    elapsed : float
+        Seconds since the request began, when the task was sent: process clocks differ, so the
+        worker places the request's start on its own clock from this.
+    """
+
+    job_id: int
+    data: bytes
+    file_type: str
+    resources: dict[str, bytes]
     params: RenderParams
-    submitted: float = field(default_factory=time.perf_counter)
-    started: float | None = None
+    media: str
+    outputs: list[str]
+    before: dict[str, float] = field(default_factory=dict)
+    elapsed: float = 0.0
 
 
 @dataclass
-class RenderOutcome:
-    """A finished render plus the worker's own timings (seconds)."""
+class RenderReply:
+    """A finished render, encoded: everything the HTTP response needs.
 
-    result: RenderResult
-    queue: float
-    parse: float
+    Attributes
+    ----------
+    body : bytes
+    media_type : str
+        The full ``Content-Type`` (with the boundary of a multipart body).
+    headers : dict of str to str
+        ``Server-Timing``, ``X-Render-Plan``, ``X-Render-Warnings``, ``Cache-Control``, ...
+    seconds : float
+        Time the worker spent on the task (parse, render, encode).
+    cache_hit : bool
+        Whether the parsed scene came from the worker's cache.
+    """
+
+    body: bytes
+    media_type: str
+    headers: dict[str, str]
+    seconds: float
     cache_hit: bool
 
 
-class RenderWorker:
-    """Owns the GL thread of this process.
+@dataclass(frozen=True)
+class ErrorPayload:
+    """An exception raised in the worker, in a form that crosses the pipe.
+
+    Library exceptions do not all survive pickling (``LimitError(limit, message)`` keeps only the
+    message in ``args``), so the class, message and attributes travel separately and
+    :meth:`rebuild` puts them back together.
+    """
+
+    module: str
+    qualname: str
+    message: str
+    attrs: dict[str, Any]
+    pickled: bytes | None = None
+
+    @classmethod
+    def of(cls, exc: BaseException) -> ErrorPayload:
+        kind = type(exc)
+        pickled = None
+        if not isinstance(exc, ShadowMapError):
+            try:  # anything else goes as itself when it can, else as its type name and message
+                pickled = pickle.dumps(exc)
+                pickle.loads(pickled)
+            except Exception:  # noqa: BLE001 - not picklable: rebuilt as a RuntimeError
+                pickled = None
+        attrs = {}
+        for key, value in vars(exc).items():
+            try:
+                pickle.dumps(value)
+            except Exception:  # noqa: BLE001 - an attribute that cannot travel is left out
+                continue
+            attrs[key] = value
+        return cls(kind.__module__, kind.__qualname__, str(exc), attrs, pickled)
+
+    def rebuild(self) -> BaseException:
+        """The exception again, in this process."""
+        if self.pickled is not None:
+            return pickle.loads(self.pickled)
+        try:
+            kind = getattr(import_module(self.module), self.qualname)
+        except (ImportError, AttributeError):
+            kind = None
+        if isinstance(kind, type) and issubclass(kind, ShadowMapError):
+            exc = kind.__new__(kind)
+            Exception.__init__(exc, self.message)
+            exc.__dict__.update(self.attrs)
+            return exc
+        return RuntimeError(f"{self.qualname} in the render worker: {self.message}")
+
+
+# --------------------------------------------------------------------------------------------
+# The process
+# --------------------------------------------------------------------------------------------
+
+
+def _setup_logging(level: int) -> None:
+    root = logging.getLogger("shadowmap")
+    if not root.handlers:
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter(
+            f"%(levelname)s:     %(name)s[{os.getpid()}]: %(message)s"))
+        root.addHandler(handler)
+        root.setLevel(level)
+
+
+def worker_main(conn: Connection, config: WorkerConfig) -> None:
+    """Entry point of the worker process: make the renderer, report ready, serve tasks.
 
     Parameters
     ----------
-    settings : Settings
-        Limits, queue size and cache sizes.
+    conn : Connection
+        This process's end of the pipe to the supervisor.
+    config : WorkerConfig
     """
+    # Ctrl-C reaches the whole process group; the server decides when its worker stops (and
+    # kills it if need be), so the worker does not die half-way through its own answer.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _setup_logging(config.log_level)
 
-    def __init__(self, settings: Settings) -> None:
-        self.settings = settings
-        self.limits = settings.limits()
-        self._queue: queue.Queue = queue.Queue(maxsize=settings.queue_size)
-        self._thread = threading.Thread(target=self._run, name="shadowmap-gl", daemon=True)
-        self._ready = threading.Event()
-        self._stopping = False
-        self._startup_error: BaseException | None = None
-        self._renderer: Renderer | None = None
-        self._info: dict = {}
-        self._busy_since: float | None = None
-        self._mean_seconds = 1.0  # running mean of render time, for Retry-After
-        self.renders = 0
-        self.failures = 0
+    def new_renderer() -> Renderer:
+        return Renderer(limits=config.limits, cache_bytes=config.cache_bytes,
+                        cache_entries=config.cache_entries)
 
-    # -- lifetime ----------------------------------------------------------------------------
-
-    def start(self) -> None:
-        """Start the GL thread and wait until its context exists.
-
-        Raises
-        ------
-        RenderError
-            The context could not be created, or not within ``startup_timeout``.
-        """
-        self._thread.start()
-        if not self._ready.wait(self.settings.startup_timeout):
-            raise RenderError("the GL context was not ready after "
-                              f"{self.settings.startup_timeout} s")
-        if self._startup_error is not None:
-            raise RenderError(f"cannot start the renderer: {self._startup_error}")
-
-    def close(self, timeout: float = 10.0) -> None:
-        """Cancel waiting jobs, let a running one finish (up to ``timeout``), release GL."""
-        self._stopping = True
-        while True:  # drain, so the stop marker fits into the bounded queue
-            try:
-                item = self._queue.get_nowait()
-            except queue.Empty:
-                break
-            if item is not _STOP:
-                item[1].cancel()
+    try:
+        renderer = new_renderer()
+    except BaseException as exc:  # noqa: BLE001 - reported to the supervisor, which gives up
+        _send(conn, ("failed", f"cannot start the renderer: {type(exc).__name__}: {exc}"))
+        return
+    try:
+        warm = None
         try:
-            self._queue.put(_STOP, timeout=timeout)
-        except queue.Full:
-            pass
-        self._thread.join(timeout)
-
-    # -- state -------------------------------------------------------------------------------
-
-    @property
-    def info(self) -> dict:
-        """GL platform, renderer and version, as read when the context was created."""
-        return dict(self._info)
-
-    @property
-    def alive(self) -> bool:
-        return self._thread.is_alive() and self._renderer is not None and not self._stopping
-
-    @property
-    def queued(self) -> int:
-        return self._queue.qsize()
-
-    @property
-    def busy_seconds(self) -> float | None:
-        """How long the current render has been running, None when idle."""
-        since = self._busy_since
-        return None if since is None else time.perf_counter() - since
-
-    def retry_after(self) -> int:
-        """Seconds a client should wait before retrying: roughly the time to drain the queue."""
-        estimate = (self.queued + 1) * self._mean_seconds
-        return int(min(max(math.ceil(estimate), 1), 300))
-
-    # -- submitting --------------------------------------------------------------------------
-
-    def submit(self, upload: SceneUpload,
-               params: RenderParams) -> tuple[RenderJob, Future[RenderOutcome]]:
-        """Queue a render without waiting.
-
-        Raises
-        ------
-        ServiceError
-            503 when the queue is full or the renderer is not running.
-        """
-        if not self.alive:
-            raise ServiceError(503, "unavailable", "the renderer is not running",
-                               headers={"Retry-After": "10"})
-        job = RenderJob(upload, params)
-        fut: Future[RenderOutcome] = Future()
-        try:
-            self._queue.put_nowait((job, fut))
-        except queue.Full:
-            raise ServiceError(
-                503, "queue_full",
-                f"the render queue is full ({self.settings.queue_size} waiting); try again later",
-                headers={"Retry-After": str(self.retry_after())},
-            ) from None
-        return job, fut
-
-    async def render(self, upload: SceneUpload, params: RenderParams) -> RenderOutcome:
-        """Queue a render and await it within ``settings.render_timeout`` (queue wait + run).
-
-        Raises
-        ------
-        ServiceError
-            503 (queue full, or the time ran out before the render started, with Retry-After)
-            or 504 (the render started but did not finish in time).
-        ShadowMapError
-            Whatever the renderer raised.
-        """
-        job, fut = self.submit(upload, params)
-        limit = self.settings.render_timeout
-        try:
-            # Cancelling the wrapper on timeout cancels the job too if it has not started.
-            return await asyncio.wait_for(asyncio.wrap_future(fut), limit)
-        except TimeoutError:
-            if fut.cancel():  # true only when it never started (or was cancelled already)
-                raise ServiceError(
-                    503, "render_timeout",
-                    f"the render waited {limit:g} s in the queue without starting; try again later",
-                    limit="render_timeout",
-                    headers={"Retry-After": str(self.retry_after())},
-                ) from None
-            if fut.done():  # finished in the same instant: use it
-                return fut.result()
-            waited = (job.started or time.perf_counter()) - job.submitted
-            raise ServiceError(
-                504, "render_timeout",
-                f"the render did not finish within the limit of {limit:g} s (it waited "
-                f"{waited:.2f} s in the queue); GL work cannot be interrupted, so it finishes in "
-                "the background and its result is dropped",
-                limit="render_timeout",
-            ) from None
-
-    # -- the GL thread -----------------------------------------------------------------------
-
-    def _new_renderer(self) -> Renderer:
-        return Renderer(limits=self.limits, cache_bytes=self.settings.gpu_cache_bytes,
-                        cache_entries=self.settings.scene_cache_entries)
-
-    def _run(self) -> None:
-        try:
-            self._renderer = self._new_renderer()
-            self._info = self._renderer.info
-        except BaseException as exc:  # noqa: BLE001 - reported to start()
-            self._startup_error = exc
-            return
-        finally:
-            self._ready.set()
-        log.info("GL thread ready: %s", self._info)
-        try:
-            while True:
-                item = self._queue.get()
-                if item is _STOP:
-                    break
-                job, fut = item
-                if self._stopping or not fut.set_running_or_notify_cancel():
-                    fut.cancel()
-                    continue
-                job.started = self._busy_since = time.perf_counter()
-                try:
-                    fut.set_result(self._execute(job))
-                    self.renders += 1
-                except Exception as exc:  # noqa: BLE001 - every error goes to its request
-                    self.failures += 1
-                    fut.set_exception(exc)
-                    if isinstance(exc, RenderError):
-                        self._reset_renderer(exc)
-                finally:
-                    seconds = time.perf_counter() - job.started
-                    self._mean_seconds = 0.8 * self._mean_seconds + 0.2 * seconds
-                    self._busy_since = None
-                    job = fut = item = None  # drop references while idle
-        finally:
-            renderer, self._renderer = self._renderer, None
-            if renderer is not None:
+            warm = _warm_up(renderer, config)
+        except Exception as exc:  # noqa: BLE001 - a render that fails is not a reason to be down
+            # Renders that do not take the failing path may still work: serve without the
+            # warm-up (on a fresh context if GL failed) rather than leave the service down.
+            log.warning("the warm-up render failed, serving without it: %s: %s",
+                        type(exc).__name__, exc)
+            if isinstance(exc, RenderError):
                 renderer.close()
+                renderer = new_renderer()
+        if _send(conn, ("ready", WorkerReady(os.getpid(), renderer.info, warm))):
+            _serve(renderer, conn)
+    except BaseException as exc:  # noqa: BLE001 - e.g. the fresh context failed
+        _send(conn, ("failed", f"cannot start the renderer: {type(exc).__name__}: {exc}"))
+    finally:
+        renderer.close()
 
-    def _reset_renderer(self, exc: Exception) -> None:
-        """Replace the GL context after a GL failure, so one bad render cannot poison the next."""
-        log.warning("recreating the GL context after: %s", exc)
-        old, self._renderer = self._renderer, None
-        try:
-            if old is not None:
-                old.close()
-        except Exception:  # noqa: BLE001 - the old context may be beyond repair
-            log.exception("closing the failed GL context")
-        try:
-            self._renderer = self._new_renderer()
-        except Exception:  # noqa: BLE001
-            log.exception("cannot recreate the GL context; the worker is down")
 
-    def _execute(self, job: RenderJob) -> RenderOutcome:
-        if self._renderer is None:
-            raise RenderError("the renderer is not running")
-        t0 = time.perf_counter()
-        cache = self._renderer.scenes
-        hits = cache.hits
-        scene = self._renderer.load(job.upload.data, file_type=job.upload.file_type,
-                                    resources=job.upload.resources)
-        parse = time.perf_counter() - t0
-        result = self._renderer.render(scene, job.params)
-        assert job.started is not None  # _run sets it before executing the job
-        return RenderOutcome(result, queue=job.started - job.submitted, parse=parse,
-                             cache_hit=cache.hits > hits)
+def _send(conn: Connection, message: object) -> bool:
+    """Send to the supervisor; False when it is gone (then this process just ends)."""
+    try:
+        conn.send(message)
+    except (OSError, EOFError):
+        return False
+    return True
+
+
+def _warm_up(renderer: Renderer, config: WorkerConfig) -> float | None:
+    """Render the warm-up scene twice; the seconds of the second render (shaders compiled)."""
+    if config.warmup_scene is None:
+        return None
+    w, h = WARMUP_SIZE
+    params = RenderParams.model_validate({**config.warmup_params, "width": w, "height": h})
+    scene = renderer.load(config.warmup_scene, file_type="glb")
+    renderer.render(scene, params)
+    t = time.perf_counter()
+    renderer.render(scene, params)
+    return time.perf_counter() - t
+
+
+def _serve(renderer: Renderer, conn: Connection) -> None:
+    while True:
+        try:
+            message = conn.recv()
+        except (OSError, EOFError):
+            return  # the server process is gone
+        if not isinstance(message, tuple) or not message or message[0] != "render":
+            return  # ("stop",), or anything unexpected: end cleanly
+        task: RenderTask = message[1]
+        job_id = task.job_id
+        del message
+        # Received: from now on a death of this process may be this job's doing, so the
+        # supervisor no longer retries it elsewhere.
+        if not _send(conn, ("started", job_id)):
+            return
+        try:
+            reply = execute(renderer, task)
+        except Exception as exc:  # noqa: BLE001 - every error goes back to its request
+            if not isinstance(exc, ShadowMapError):
+                log.error("render failed unexpectedly", exc_info=exc)
+            # After a GL failure the context may be in any state: a fresh process is the only
+            # sure reset, so this one ends after answering and the supervisor starts another.
+            fatal = isinstance(exc, RenderError)
+            if not _send(conn, ("error", job_id, ErrorPayload.of(exc), fatal)) or fatal:
+                return
+            continue
+        finally:
+            del task  # the upload's bytes are not kept while idle
+        sent = _send(conn, ("done", job_id, reply))
+        del reply
+        if not sent:
+            return
+
+
+def execute(renderer: Renderer, task: RenderTask) -> RenderReply:
+    """Load (or reuse), render and encode one task.
+
+    Parameters
+    ----------
+    renderer : Renderer
+    task : RenderTask
+
+    Raises
+    ------
+    ShadowMapError
+        Whatever the renderer raised.
+    """
+    from .encode import build_response
+
+    t0 = time.perf_counter()
+    started = t0 - task.elapsed  # the request's start, on this process's clock
+    hits = renderer.scenes.hits
+    scene = renderer.load(task.data, file_type=task.file_type, resources=task.resources)
+    cache_hit = renderer.scenes.hits > hits
+    before = {**task.before, "parse": time.perf_counter() - t0}
+    result = renderer.render(scene, task.params)
+    notes = {"parse": "scene cache hit"} if cache_hit else {}
+    response = build_response(task.media, result, task.outputs, before, notes, started)
+    del result, scene
+    headers = {k: v for k, v in response.headers.items()
+               if k not in ("content-length", "content-type")}
+    return RenderReply(bytes(response.body), response.headers["content-type"], headers,
+                       time.perf_counter() - t0, cache_hit)

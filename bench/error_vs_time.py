@@ -18,11 +18,19 @@ repeated colour renders (the production request) after a warm-up, with the light
 Per configuration: the mean over scenes of 1 - IoU, of the misclassified percentage and of the
 per-scene median times.
 
+A second section sweeps the cascade settings (one map, 2, 3 and 4 cascades, 'auto', 'auto' in
+stable mode) over the large scenes of ``shadowmap.renderer.testing`` (terrain to the horizon, a
+1-unit box on a 10,000-unit plane, a city grid from street level): the worst IoU over bands of
+camera distance, the overall IoU, and the median frame time, interleaved across the settings,
+with its ratio to the one-map frame (``cascades_vs_time.{md,csv}``; ``--cascades`` runs only
+this section).
+
 Writes ``bench/results/error_vs_time.{csv,md,png}``; prints whether the default configuration
 (the shadow settings of ``RenderParams()``) is on the Pareto front of time against mean
 misclassified percentage. ``--quick`` writes to ``bench/results/quick/``.
 
-Run: ``PYTHONPATH=. .venv/bin/python bench/error_vs_time.py [--quick] [--repeats N]``
+Run: ``PYTHONPATH=. .venv/bin/python bench/error_vs_time.py [--quick] [--repeats N]
+[--cascades]``
 """
 
 from __future__ import annotations
@@ -392,8 +400,92 @@ def run(quick: bool, repeats: int) -> None:
              extra=["error_vs_time.png"])
 
 
+CASCADE_CONFIGS: dict[str, dict] = {
+    "one map": {"cascades": 1},
+    "2 cascades": {"cascades": 2},
+    "3 cascades": {"cascades": 3},
+    "4 cascades": {"cascades": 4},
+    "auto (default)": {},
+    "auto, stable": {"stable_cascades": True},
+}
+LARGE_SCENES = ("terrain_to_horizon", "small_caster_on_huge_plane", "city_grid")
+
+
+def run_cascades(quick: bool, repeats: int) -> None:
+    """The cascade settings over the large scenes: worst band IoU and time against one map."""
+    from shadowmap.renderer import testing as T
+
+    out_dir = C.results_dir(quick)
+    t_start = time.perf_counter()
+    names = LARGE_SCENES[:2] if quick else LARGE_SCENES
+    rows: list[dict] = []
+    with Renderer() as r:
+        for name in names:
+            large = getattr(T, name)()
+            params = {k: RenderParams(lights=[large.light], camera=large.camera, shadows=v)
+                      for k, v in CASCADE_CONFIGS.items()}
+            errors = {}
+            for k, p in params.items():
+                m = T.measure(r, large.scene, p)
+                bands = T.band_metrics(m.result.visibility, m.reference, large.bands)
+                lp = m.result.plan["lights"][0]
+                errors[k] = (m.metrics[0].iou, min(b.iou for b in bands),
+                             [b.iou for b in bands], lp)
+            times = C.time_interleaved(
+                {k: (lambda p=p, s=large.scene: r.render(s, p)) for k, p in params.items()},
+                repeats)
+            base = times["one map"].ms()
+            for k in params:
+                iou, worst, per_band, lp = errors[k]
+                cascades = lp.get("cascades", [])
+                rows.append({
+                    "scene": name, "config": k, "iou": round(iou, 4), "worst_band_iou":
+                    round(worst, 4), "band_iou": " / ".join(f"{b:.3f}" for b in per_band),
+                    "cascades": len(cascades) or 1,
+                    "map_size": cascades[0]["map_size"] if cascades else lp.get("map_size"),
+                    "total_ms": round(times[k].ms(), 2), "light_ms": round(times[k].ms("light"), 2),
+                    "camera_ms": round(times[k].ms("camera"), 2),
+                    "plan_ms": round(times[k].ms("plan"), 2),
+                    "ratio_to_one_map": round(times[k].ms() / base, 3),
+                })
+        machine = C.machine_info(r)
+    headers = ["scene", "setting", "maps", "map size", "IoU", "worst band IoU",
+               "IoU near / mid / far", "ms", "light ms", "camera ms", "× one map"]
+    table = C.markdown_table(headers, [[
+        x["scene"].replace("_", " "), x["config"], x["cascades"], x["map_size"],
+        C.fmt(x["iou"], 3), C.fmt(x["worst_band_iou"], 3), x["band_iou"],
+        C.fmt(x["total_ms"]), C.fmt(x["light_ms"]), C.fmt(x["camera_ms"]),
+        C.fmt(x["ratio_to_one_map"], 2)] for x in rows], "llrrrrlrrrr")
+    elapsed = time.perf_counter() - t_start
+    md = "\n".join([
+        "# Cascaded shadow maps: error against time on large scenes",
+        "",
+        "640x480, one directional light, default settings but for the cascades. IoU: shadow "
+        "mask against the ray-traced reference; bands: camera distance near / middle / far "
+        "(edges in `shadowmap.renderer.testing`). Times: medians of "
+        f"{repeats} colour renders per setting, interleaved; × one map: the setting's time over "
+        "the one-map frame of the same scene.",
+        "",
+        table,
+        "",
+        f"Machine: {machine}. Run time {elapsed:.0f} s" + (" (--quick)." if quick else "."),
+        "",
+    ])
+    C.finish(out_dir, "cascades_vs_time", md, rows, [table], [], elapsed)
+
+
 def main(argv: list[str] | None = None) -> None:
-    C.bench_main(__doc__, run, "a few configurations on 3 scenes, 2 repeats (smoke run)", 2, argv)
+    args = list(sys.argv[1:] if argv is None else argv)
+    cascades_only = "--cascades" in args
+    args = [a for a in args if a != "--cascades"]
+
+    def both(quick: bool, repeats: int) -> None:
+        if not cascades_only:
+            run(quick, repeats)
+        run_cascades(quick, repeats)
+
+    C.bench_main(__doc__ or "", both,
+                 "a few configurations on 3 scenes, 2 repeats (smoke run)", 2, args)
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from .errors import (
 from .limits import Limits
 from .params import RenderParams
 from .render import Renderer, RenderResult
-from .scene import Scene, load_scene
+from .scene import Scene, load_scene, scene_from_meshes, scene_from_trimesh
 
 __all__ = [
     "LimitError",
@@ -44,4 +44,6 @@ __all__ = [
     "UnsupportedExtension",
     "UnsupportedVersion",
     "load_scene",
+    "scene_from_meshes",
+    "scene_from_trimesh",
 ]

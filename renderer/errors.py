@@ -30,6 +30,10 @@ class UnsupportedExtension(SceneError):
             "the file requires glTF extensions this renderer does not support: "
             + ", ".join(self.extensions)))
 
+    def __reduce__(self) -> tuple[type, tuple[list[str], str]]:
+        # Pickled with its attributes (an error sent back from a worker process).
+        return type(self), (self.extensions, str(self))
+
 
 class UnsupportedVersion(SceneError):
     """The file is well-formed glTF of a version this loader does not read.
@@ -44,9 +48,27 @@ class UnsupportedVersion(SceneError):
         super().__init__(message)
         self.field = field
 
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        return type(self), (self.field, str(self))
+
 
 class RequestError(ShadowMapError, ValueError):
-    """The request is well-formed but impossible (e.g. a spot light with no direction)."""
+    """The request is invalid (params that do not validate) or impossible (e.g. a spot light
+    with no direction).
+
+    Attributes
+    ----------
+    errors : list of dict
+        For params that do not validate: pydantic's errors, each with ``loc`` (list of str),
+        ``msg`` and ``type``; empty otherwise.
+    """
+
+    def __init__(self, message: str, errors: list[dict[str, object]] | None = None) -> None:
+        super().__init__(message)
+        self.errors = list(errors or [])
+
+    def __reduce__(self) -> tuple[type, tuple[str, list[dict[str, object]]]]:
+        return type(self), (str(self), self.errors)
 
 
 class LimitError(ShadowMapError):
@@ -61,6 +83,9 @@ class LimitError(ShadowMapError):
     def __init__(self, limit: str, message: str) -> None:
         super().__init__(message)
         self.limit = limit
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        return type(self), (self.limit, str(self))
 
 
 class RenderError(ShadowMapError):

@@ -13,6 +13,8 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
+from .limits import MAX_CASCADES
+
 Encoding = Literal["rgba8", "rgb8", "rg8", "r8", "depth"]
 Output = Literal["color", "light_depth", "visibility", "depth"]
 ENCODINGS: tuple[str, ...] = ("rgba8", "rgb8", "rg8", "r8", "depth")
@@ -143,6 +145,32 @@ class ShadowParams(_Model):
         "bilinear 2x2 compare",
     )
     bias: BiasParams = Field(default_factory=BiasParams)
+    cascades: int | Literal["auto"] = Field(
+        default="auto",
+        description="directional lights: shadow maps along the view (cascaded shadow maps), "
+        "from 1 to max_cascades, or 'auto': one map when it gives at most about one camera "
+        "pixel per texel on the nearest visible receiver, else the fewest cascades that do "
+        "(up to max_cascades)",
+    )
+    max_cascades: int = Field(default=MAX_CASCADES, ge=1, le=MAX_CASCADES,
+                              description="most cascades 'auto' may choose per light")
+    cascade_split: float = Field(
+        default=0.8, ge=0.0, le=1.0,
+        description="the practical split scheme's blend: 1 splits the view distance "
+        "logarithmically, 0 uniformly",
+    )
+    cascade_blend: float = Field(
+        default=0.1, ge=0.0, le=0.5,
+        description="fraction of each cascade's depth range, at its far end, over which its "
+        "shadow fades into the next cascade's",
+    )
+    stable_cascades: bool = Field(
+        default=False,
+        description="fit each cascade to its whole slice of the view (a sphere) and snap it to "
+        "whole texels, so that shadows do not shimmer as the camera moves; coarser texels",
+    )
+    debug_cascades: bool = Field(
+        default=False, description="tint the colour output by the cascade each pixel reads")
 
     @model_validator(mode="after")
     def _sizes(self) -> ShadowParams:
@@ -153,6 +181,8 @@ class ShadowParams(_Model):
                 raise ValueError("map_size must not exceed max_map_size")
         if self.pcf_kernel % 2 == 0:
             raise ValueError("pcf_kernel must be odd")
+        if self.cascades != "auto" and not 1 <= self.cascades <= self.max_cascades:
+            raise ValueError("cascades must be from 1 to max_cascades, or 'auto'")
         return self
 
 

@@ -6,8 +6,14 @@ filtering, no bias tuning: what a perfect shadow map would give.
 
 All tracing happens in a normalised frame (scene centre at the origin, bounding-box diagonal 1),
 computed in float64 before anything reaches embree's float32 BVH. That keeps the result the same
-whether the scene is millimetres wide or sits 1e5 units away from the origin, and lets every
-tolerance be a fixed fraction of the scene size.
+whether the scene is millimetres wide or sits 1e5 units away from the origin.
+
+Shadow rays start just off their surface by an offset relative to the local geometry, not to the
+scene: a few float32 steps of the surface triangle's own coordinates (what embree's copy of it
+may be off by), or a hundredth of the pixel's footprint where that is larger. A fixed fraction
+of the scene would lift the rays off a 10,000-unit plane by a tenth of a unit and hide the
+shadow of a 1-unit box from the truth. A shadow ray never counts its own triangle as a hit (it
+leaves a plane and cannot meet it again).
 
 Triangles that can never stop a ray of a kind (BLEND surfaces for primary rays, non-casters for
 shadow rays, untextured cut-outs whose constant alpha fails the test) are left out of that kind's
@@ -31,8 +37,12 @@ from .scene import Scene
 if TYPE_CHECKING:
     from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-#: Offset of shadow-ray origins and continuation steps, as a fraction of the scene diagonal.
+#: Continuation step of primary rays through cut-outs, as a fraction of the scene diagonal.
 EPS_REL = 1e-5
+#: Shadow-ray offset: float32 steps (2**-24 of the largest coordinate) of the surface triangle.
+EPS_ULPS = 16.0
+#: Shadow-ray offset: at least this fraction of the pixel's footprint on the surface.
+EPS_PIXEL = 1e-2
 #: Most alpha-tested surfaces a ray may pass through before it is given up. Such a pixel is
 #: reported rather than guessed: as no geometry (primary ray) or as not valid (shadow ray).
 MAX_LAYERS = 8
@@ -271,6 +281,8 @@ class _Tracer:
         t_max: np.ndarray,
         test: np.ndarray,
         threshold: np.ndarray,
+        eps: np.ndarray | None = None,
+        start_face: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Nearest hit along each ray that passes the alpha test, before ``t_max``.
 
@@ -282,6 +294,11 @@ class _Tracer:
             Hits at or beyond this distance count as misses.
         test, threshold : ndarray, shape (F,)
             Per face: whether hits need an alpha test, and the alpha a hit needs to count.
+        eps : ndarray, shape (N,), optional
+            Per ray, the first step past a surface that does not count (default
+            :data:`EPS_REL`); it doubles on a repeated hit.
+        start_face : ndarray, shape (N,), optional
+            The face each ray leaves, never counted as its hit.
 
         Returns
         -------
@@ -299,8 +316,10 @@ class _Tracer:
         bary = np.zeros((n, 2))
         unresolved = np.zeros(n, bool)
         t_start = np.zeros(n)
-        last = np.full(n, -1, np.int64)
-        step = np.full(n, self.eps)
+        last = (np.full(n, -1, np.int64) if start_face is None
+                else np.asarray(start_face, np.int64).copy())
+        base = np.full(n, self.eps) if eps is None else np.asarray(eps, np.float64)
+        step = base.copy()
         active = np.arange(n)
         for _ in range(MAX_LAYERS):
             if len(active) == 0:
@@ -326,7 +345,7 @@ class _Tracer:
             face[done], t_out[done], bary[done] = f[counts], tt[counts], bc[counts]
             skip = ~counts
             rays = active[skip]
-            step[rays] = np.where(stuck[skip], step[rays] * 2.0, self.eps)
+            step[rays] = np.where(stuck[skip], step[rays] * 2.0, base[rays])
             t_start[rays] = np.maximum(tt[skip], t_start[rays]) + step[rays]
             last[rays] = f[skip]
             active = rays
@@ -384,6 +403,12 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
     f = face[pix]
     d = dirs[pix]
     p = origins[pix] + d * t[pix, None]  # normalised frame
+    # Shadow-ray offsets from the local geometry (module docstring): float32 steps of each
+    # surface triangle's coordinates, or a fraction of the pixel's footprint (normalised frame).
+    footprint = (t[pix] + t_near[pix]) * (2 * np.tan(camera.yfov / 2) / h)
+    eps_local = np.maximum(EPS_ULPS * 2.0**-24 * np.abs(tr.tri[f]).max(axis=(1, 2)),
+                           EPS_PIXEL * footprint)
+    eps_local = np.maximum(eps_local, 1e-12)
     n = tr.normal[f]
     # Geometric normal turned toward the camera: the side of the surface the pixel shows.
     n_cam = np.where((np.einsum("ij,ij->i", n, d) > 0)[:, None], -n, n)
@@ -392,7 +417,6 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
     n_lights = len(lights)
     vis = np.full((h * w, n_lights), np.nan, np.float32)
     valid = np.zeros((h * w, n_lights), bool)
-    eps = tr.eps
     for k, light in enumerate(lights):
         if light.type == "directional":
             ld = -np.asarray(light.direction, np.float64)
@@ -416,13 +440,14 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
         lit = np.ones(len(p), np.float32)
         # No shadow ray from a surface the light sits on (no direction) or from a degenerate
         # triangle (no normal to offset along): those pixels count as lit.
-        trace = (dist > 2 * eps) & np.any(n != 0, axis=1)
+        trace = (dist > 2 * eps_local) & np.any(n != 0, axis=1)
         if not light.cast_shadows:
             trace[:] = False
         if trace.any():
             ti = np.flatnonzero(trace)
             nl = n_cam[ti]
             nl = np.where((np.einsum("ij,ij->i", nl, to_l[ti]) < 0)[:, None], -nl, nl)
+            eps = eps_local[ti, None]
             so = p[ti] + nl * eps + to_l[ti] * eps
             if light.type == "directional":
                 sd = np.ascontiguousarray(to_l[ti])
@@ -435,7 +460,8 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
                 # intersection), so casters very close to the light still count.
                 smax = sdist * (1.0 - 1e-9)
             sface, _, _, sun = tr.first_hits(
-                tr.shadow_bvh, so, sd, smax, tr.shadow_test, tr.shadow_threshold
+                tr.shadow_bvh, so, sd, smax, tr.shadow_test, tr.shadow_threshold,
+                eps=eps[:, 0], start_face=f[ti],
             )
             lit[ti] = (sface < 0).astype(np.float32)
             ok[ti[sun]] = False

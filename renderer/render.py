@@ -26,10 +26,18 @@ from .camera import Camera, orthonormalize_pose, resolve_camera
 from .encodings import debug_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
 from .lights import Light, resolve_lights
-from .limits import Limits, check_lights, check_map_sizes, check_request, check_scene, max_map_size
+from .limits import (
+    Limits,
+    check_gpu_range,
+    check_lights,
+    check_map_sizes,
+    check_request,
+    check_scene,
+    fit_request,
+)
 from .params import RenderParams
 from .plan import RenderPlan, make_plan
-from .scene import Scene, load_scene
+from .scene import Scene, is_trimesh, load_scene, scene_from_trimesh
 
 if TYPE_CHECKING:
     from .gl.resources import GpuScene
@@ -43,12 +51,17 @@ class LightDepth:
 
     Attributes
     ----------
-    image : ndarray, shape (S, S) or (2S, 3S), uint8
-        Decoded linear depth as grayscale, near = dark, nothing drawn = white (cube maps 3 x 2).
-    depth : ndarray, shape (S, S) or (6, S, S), float32
-        Decoded linear depth in [0, 1] over [near, far]; NaN where nothing was drawn.
+    kind : {"ortho", "perspective", "cube", "cascades"}
+    image : ndarray, shape (S, S), (2S, 3S) or (S, K*S), uint8
+        Decoded linear depth as grayscale, near = dark, nothing drawn = white (cube maps 3 x 2,
+        K cascades side by side, near first).
+    depth : ndarray, shape (S, S), (6, S, S) or (K, S, S), float32
+        Decoded linear depth in [0, 1] over [near, far]; NaN where nothing was drawn. Each
+        cascade over its own range (``ranges``).
     near, far : float
-        World distances the depth is normalised over.
+        World distances the depth is normalised over (cascades: the extremes of ``ranges``).
+    ranges : list of (float, float)
+        Each cascade's (near, far); empty otherwise.
     """
 
     light: int
@@ -57,6 +70,43 @@ class LightDepth:
     depth: np.ndarray
     near: float
     far: float
+    ranges: list[tuple[float, float]] = field(default_factory=list)
+
+
+def _request_points(params: RenderParams) -> list[np.ndarray]:
+    """The positions a request names (camera eye, target and pose; lights' positions, targets
+    and poses), world space."""
+    out = []
+    cam = params.camera
+    if cam is not None:
+        out += [np.asarray(v, np.float64) for v in (cam.eye, cam.target) if v is not None]
+        if cam.pose is not None:
+            out.append(np.asarray(cam.pose, np.float64)[:3, 3])
+    for lt in params.lights or []:
+        if lt.type == "directional":
+            continue
+        out += [np.asarray(v, np.float64) for v in (lt.position, lt.target) if v is not None]
+        if lt.pose is not None:
+            out.append(np.asarray(lt.pose, np.float64)[:3, 3])
+    return out
+
+
+def _light_depths(maps: list) -> list[LightDepth]:
+    """The ``light_depth`` output: one per shadowed light; a cascaded light's layers side by
+    side, near to far."""
+    out: list[LightDepth] = []
+    for sm in maps:
+        lp = sm.plan
+        assert lp.kind is not None  # only lights with a map pass have a ShadowMap
+        depth = sm.read_depth()
+        if not lp.cascades:
+            out.append(LightDepth(lp.index, lp.kind, debug_image(depth), depth, lp.near, lp.far))
+            continue
+        image = np.concatenate([debug_image(d) for d in depth], axis=1)
+        out.append(LightDepth(lp.index, "cascades", image, depth,
+                              min(c.near for c in lp.cascades), max(c.far for c in lp.cascades),
+                              [(float(c.near), float(c.far)) for c in lp.cascades]))
+    return out
 
 
 @dataclass
@@ -182,13 +232,15 @@ class Renderer:
 
     # -- loading -----------------------------------------------------------------------------
 
-    def load(self, source: str | Path | bytes, *, file_type: str | None = None,
+    def load(self, source: str | Path | bytes | Any, *, file_type: str | None = None,
              resources: Mapping[str, bytes] | None = None) -> Scene:
         """Parse a glTF file, or return the scene parsed from the same content before.
 
         Parameters
         ----------
-        source : path or bytes
+        source : path, bytes, trimesh.Trimesh or trimesh.Scene
+            A file, or a trimesh object (converted by
+            :func:`~shadowmap.renderer.scene.scene_from_trimesh`).
         file_type : {"glb", "gltf"}, optional
             Taken from the path's suffix, else detected from the content.
         resources : mapping of str to bytes, optional
@@ -200,6 +252,10 @@ class Renderer:
             As :func:`~shadowmap.renderer.load_scene`; ``max_triangles`` comes from
             :attr:`limits`.
         """
+        if is_trimesh(source):
+            scene = scene_from_trimesh(source)
+            check_scene(scene, self.limits)
+            return scene
         if isinstance(source, (str, Path)):
             try:
                 data = Path(source).read_bytes()
@@ -248,15 +304,15 @@ class Renderer:
 
     # -- rendering ---------------------------------------------------------------------------
 
-    def render(self, scene: Scene | str | Path | bytes,
+    def render(self, scene: Scene | str | Path | bytes | Any,
                params: RenderParams | Mapping | None = None,
                *, resources: Mapping[str, bytes] | None = None) -> RenderResult:
         """Render a scene.
 
         Parameters
         ----------
-        scene : Scene, path or bytes
-            A loaded scene, or a glTF file to load (see :meth:`load`).
+        scene : Scene, path, bytes, trimesh.Trimesh or trimesh.Scene
+            A loaded scene, or a glTF file or trimesh object to load (see :meth:`load`).
         params : RenderParams or dict, optional
         resources : mapping of str to bytes, optional
             External files of a ``.gltf`` given as path or bytes.
@@ -283,18 +339,24 @@ class Renderer:
             scene = self._with_ground(scene)
         timings["load"] = time.perf_counter() - t0
         check_scene(scene, self.limits, params)
-        warnings += request_warnings(params, scene, self.limits)
-        top = max_map_size(params, self.limits)
+        # The memory the render needs, before any GL work: refused over max_request_bytes,
+        # except that 'auto' maps are held to the largest size that fits (with a warning).
+        top, fitted = fit_request(params, scene, self.limits)
+        warnings += request_warnings(params, scene, self.limits) + fitted
         if params.shadows.max_map_size != top:
             params = params.model_copy(deep=True)
             params.shadows.max_map_size = top
+        # Before the upload and the camera: coordinates float32 cannot hold would overflow there.
+        lo, hi = scene.bounds
+        check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
         try:
             result = self._render(scene, params, timings, t0)
         except ShadowMapError:
             raise
         except GLError as exc:
             raise RenderError(f"OpenGL error: {exc}") from exc
-        result.warnings = list(dict.fromkeys(warnings))  # each once, in the order found
+        # The plan's own (cascades it had to cut or coarsen) after the request's; each once.
+        result.warnings = list(dict.fromkeys(warnings + result.warnings))
         return result
 
     def _render(self, scene: Scene, params: RenderParams, timings: dict[str, float],
@@ -311,6 +373,9 @@ class Renderer:
             camera = resolve_camera(params.camera, scene, params.width, params.height)
             lights = resolve_lights(params.lights, scene)
             check_lights(len(lights), self.limits)
+            # Again with the file's camera and lights, and the resolved positions.
+            check_gpu_range(scene.bounds, gpu.origin, [camera.position] + [
+                lt.position for lt in lights if lt.type != "directional"])
             plan = make_plan(scene, camera, lights, gpu.origin, params)
             check_map_sizes((lp.map_size for lp in plan.map_lights),
                             min(self.context.max_texture_size, self.context.max_cube_size))
@@ -332,19 +397,13 @@ class Renderer:
             out = self.camera_pass.read(list(params.outputs), len(lights), params.alpha, camera)
             result = RenderResult(color=out.color, visibility=out.visibility, depth=out.depth)
             if "light_depth" in params.outputs:
-                for sm in maps:
-                    depth = sm.read_depth()
-                    kind = sm.plan.kind
-                    assert kind is not None  # only lights with a map pass have a ShadowMap
-                    result.light_depth.append(
-                        LightDepth(sm.plan.index, kind, debug_image(depth), depth,
-                                   sm.plan.near, sm.plan.far)
-                    )
+                result.light_depth = _light_depths(maps)
             check_gl("readback")
             timings["readback"] = time.perf_counter() - t
         finally:
             if not kept:
                 gpu.release()
+        result.warnings = list(plan.warnings)
         result.plan = self._plan_report(plan, params, hit)
         result.plan["shader_variants"] = {
             "light_pass": _variant_names(self.light_pass.variants),
@@ -415,10 +474,16 @@ def _as_params(params: RenderParams | Mapping | None) -> RenderParams:
     try:
         return RenderParams.model_validate(params)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "params"
-        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-        raise RequestError(f"invalid params: {where}: {first['msg']}{more}") from exc
+        # Pydantic's messages, kept whole in ``errors`` (without the inputs, which may be
+        # large or not JSON) and the first five in the message.
+        errors: list[dict[str, object]] = []
+        parts: list[str] = []
+        for e in exc.errors():
+            loc = [str(p) for p in e["loc"]]
+            errors.append({"loc": loc, "msg": str(e["msg"]), "type": str(e["type"])})
+            parts.append(f"{'.'.join(loc) or 'params'}: {e['msg']}")
+        more = f" (and {len(parts) - 5} more)" if len(parts) > 5 else ""
+        raise RequestError("invalid params: " + "; ".join(parts[:5]) + more, errors) from exc
 
 
 def _variant_names(variants: set[tuple]) -> list[str]:

@@ -27,7 +27,7 @@ from urllib.parse import unquote
 import numpy as np
 
 from .cache import content_key
-from .errors import LimitError, SceneError
+from .errors import LimitError, SceneError, ShadowMapError
 from .limits import Limits, check_scene
 
 if TYPE_CHECKING:
@@ -376,6 +376,21 @@ def instance_arrays(scene: Scene) -> InstanceArrays:
     return arrays
 
 
+def preset_instance_arrays(scene: Scene, arrays: Mapping[str, np.ndarray]) -> None:
+    """Give a new scene the instance arrays its loader built anyway (names as the attributes of
+    :class:`InstanceArrays`), so that they are not read back out of its :class:`Instance`
+    objects. Arrays not given are read as usual; each given one must match the instances.
+    """
+    entry = InstanceArrays(scene)
+    for name, a in arrays.items():
+        if name not in InstanceArrays._readers or len(a) != len(scene.instances):
+            raise ValueError(f"not an instance array of this scene: {name!r}")
+        a.flags.writeable = False
+        entry.__dict__[name] = a  # what the cached_property would have computed
+    with _ARRAYS_LOCK:
+        _ARRAYS[scene] = entry
+
+
 def _extend_arrays(source: Scene, grounded: Scene) -> None:
     """Give ``grounded`` (``source`` plus instances at the end) arrays built on the source's."""
     arrays = InstanceArrays(grounded, instance_arrays(source))
@@ -388,14 +403,37 @@ def _extend_arrays(source: Scene, grounded: Scene) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _safe_name(uri: str) -> str:
-    """Normalise a relative URI; raise SceneError for anything that could leave the upload."""
+def safe_uri(uri: str, what: str = "") -> str:
+    """The relative name a URI stands for inside the upload; SceneError for anything that could
+    leave it.
+
+    The one check of every external name: buffer and image URIs (at admission, in
+    :func:`~shadowmap.renderer.gltf.reader.load_uri` and in :class:`MappingResolver`) and the
+    resolver's own keys. ``data:`` URIs are not names: the reader decodes them before asking.
+
+    Parameters
+    ----------
+    uri : str
+        As written in the file (percent-escapes and backslashes allowed).
+    what : str, optional
+        Who refers to it (``"buffer 0"``, ``"image 2"``), for the message.
+
+    Raises
+    ------
+    SceneError
+        A scheme (``file:``, ``http:``, a drive letter), an absolute path, ``..`` above the
+        upload's root, an empty name or a NUL.
+    """
+    who = f"{what}: " if what else ""
+    if not isinstance(uri, str):
+        raise SceneError(f"{who}the URI {uri!r} is not a string")
     name = unquote(uri).replace("\\", "/")
-    if ":" in name.split("/", 1)[0] or name.startswith("/") or name.startswith("//"):
-        raise SceneError(f"refusing URI {uri!r}: only relative names inside the upload are allowed")
+    if ":" in name.split("/", 1)[0] or name.startswith("/") or "\0" in name:
+        raise SceneError(f"{who}refusing URI {uri!r}: only relative names inside the upload "
+                         "are allowed")
     norm = posixpath.normpath(name)
-    if norm.startswith("..") or norm.startswith("/") or norm in ("", "."):
-        raise SceneError(f"refusing URI {uri!r}: it points outside the upload")
+    if norm == ".." or norm.startswith("../") or norm.startswith("/") or norm in ("", "."):
+        raise SceneError(f"{who}refusing URI {uri!r}: it points outside the upload")
     return norm
 
 
@@ -407,10 +445,10 @@ class MappingResolver:
     """
 
     def __init__(self, resources: Mapping[str, bytes] | None) -> None:
-        self._files = {_safe_name(k): v for k, v in (resources or {}).items()}
+        self._files = {safe_uri(k): v for k, v in (resources or {}).items()}
 
     def get(self, name: str) -> bytes:
-        key = _safe_name(name)
+        key = safe_uri(name)
         if key not in self._files:
             raise SceneError(f"the file refers to {name!r}, which was not provided")
         return self._files[key]
@@ -419,7 +457,7 @@ class MappingResolver:
 
     def namespaced(self, namespace: str) -> MappingResolver:
         sub = MappingResolver(None)
-        prefix = _safe_name(namespace) + "/"
+        prefix = safe_uri(namespace) + "/"
         sub._files = {k[len(prefix):]: v for k, v in self._files.items() if k.startswith(prefix)}
         return sub
 
@@ -575,9 +613,11 @@ def load_scene(
     resources : mapping of str to bytes, optional
         External buffers and images of a ``.gltf``, by the relative name used in the file.
     limits : Limits, optional
-        Raise :class:`LimitError` when the scene breaks one (see
-        :func:`~shadowmap.renderer.limits.check_scene`); ``max_triangles`` is checked first from
-        the accessors' declared counts, before any data is decoded.
+        Raise :class:`LimitError` when the scene breaks one: first from the JSON alone, before
+        any data is decoded (:func:`~shadowmap.renderer.gltf.admission.admit`: nodes, depth,
+        instances, primitives, declared triangles, decoded bytes), then
+        :func:`~shadowmap.renderer.limits.check_scene` on the loaded scene. Without limits
+        nothing is refused for its size (unsafe URIs still are).
     key : str, optional
         The content key of ``source`` and ``resources`` when the caller has computed it
         (:func:`~shadowmap.renderer.cache.content_key`).
@@ -608,22 +648,117 @@ def load_scene(
         file_type = file_type or path.suffix
     else:
         data = bytes(source)
-    document = read_container(data, file_type)
-    resolver = MappingResolver(resources)
     try:
-        loaded = load_gltf(document, resolver,
-                           max_triangles=None if limits is None else limits.max_triangles)
-    except (SceneError, LimitError):
+        document = read_container(data, file_type)
+        resolver = MappingResolver(resources)
+        loaded = load_gltf(document, resolver, limits)
+    except ShadowMapError:
         raise
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError,
+            RecursionError) as exc:
         # The reader checks what it reads; this catches a malformed document it did not
-        # anticipate, so bad input stays a SceneError (HTTP 400), never a crash.
-        raise SceneError(f"malformed glTF ({type(exc).__name__}: {exc})") from None
+        # anticipate, so bad input stays a SceneError (HTTP 400), never a crash. Nothing
+        # recurses on the document today; should something, a deep one is still the file's.
+        raise SceneError(f"malformed glTF ({type(exc).__name__}: {str(exc)[:200]})") from None
+    except MemoryError:
+        # The admission check bounds what a file may ask for; this is the backstop.
+        raise LimitError("max_request_bytes", "loading the scene ran out of memory") from None
     scene = Scene(loaded.primitives, loaded.instances, loaded.cameras, loaded.lights,
                   key=key or content_key(data, resources), warnings=loaded.warnings)
+    preset_instance_arrays(scene, loaded.arrays)
     if limits is not None:
         check_scene(scene, limits)
     return scene
+
+
+def is_trimesh(obj: object) -> bool:
+    """Whether ``obj`` is a ``trimesh.Trimesh`` or ``trimesh.Scene`` (checked without importing
+    trimesh where the caller has not)."""
+    import sys
+
+    tm = sys.modules.get("trimesh")
+    return tm is not None and isinstance(obj, (tm.Trimesh, tm.Scene))
+
+
+def scene_from_trimesh(obj: Any) -> Scene:
+    """A :class:`Scene` from a ``trimesh.Trimesh`` or ``trimesh.Scene``, what pyrender users hold.
+
+    A ``Trimesh`` is one instance, its vertices taken as world space. A ``trimesh.Scene`` is read
+    through its graph: every node that draws a geometry is an instance of it, with the node's
+    world transform, and a geometry drawn by many nodes is one primitive (drawn instanced).
+    ``castShadow`` / ``receiveShadow`` booleans are read from the geometry's ``metadata``, and
+    from ``metadata["extras"]``, where trimesh keeps a glTF file's extras. Geometry that is not a
+    triangle mesh (points, paths) is left out with a warning in :attr:`Scene.warnings`.
+
+    Raises
+    ------
+    SceneError
+        Nothing to draw; a mesh without triangles, with indices outside its vertices, or with
+        non-finite vertices or transforms.
+    """
+    import trimesh
+
+    if isinstance(obj, trimesh.Trimesh):
+        obj = trimesh.Scene(obj)
+    if not isinstance(obj, trimesh.Scene):
+        raise SceneError(f"not a trimesh mesh or scene: {type(obj).__name__}")
+    primitives: list[Primitive] = []
+    index: dict[str, int] = {}
+    instances: list[Instance] = []
+    warnings: list[str] = []
+    flags: dict[str, tuple[bool, bool]] = {}
+    for node in obj.graph.nodes_geometry:
+        matrix, name = obj.graph[node]
+        geom_name = str(name)
+        geom = obj.geometry.get(geom_name)
+        if not isinstance(geom, trimesh.Trimesh):
+            warnings.append(f"node {node!r} draws {type(geom).__name__} {geom_name!r}, not a "
+                            "triangle mesh: left out")
+            continue
+        m = np.asarray(matrix, np.float64)
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise SceneError(f"node {node!r} has a non-finite transform")
+        if geom_name not in index:
+            index[geom_name] = len(primitives)
+            primitives.append(_primitive_from_trimesh(geom, geom_name))
+            meta = geom.metadata if isinstance(geom.metadata, dict) else {}
+            extras = meta.get("extras")
+            cast = _flag(meta, "castShadow")
+            receive = _flag(meta, "receiveShadow")
+            cast = _flag(extras, "castShadow") if cast is None else cast
+            receive = _flag(extras, "receiveShadow") if receive is None else receive
+            flags[geom_name] = (cast is not False, receive is not False)
+        p = index[geom_name]
+        lo, hi = primitives[p].local_bounds.astype(np.float64)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        world = corners @ m[:3, :3].T + m[:3, 3]
+        cast, receive = flags[geom_name]
+        instances.append(Instance(p, m, cast, receive, str(node),
+                                  np.stack([world.min(axis=0), world.max(axis=0)])))
+    if not instances:
+        detail = "; ".join(warnings) or "the scene has no geometry"
+        raise SceneError(f"the scene has no triangles to render ({detail})")
+    return Scene(primitives, instances, key=_built_key(primitives, instances),
+                 warnings=warnings)
+
+
+def _built_key(primitives: list[Primitive], instances: list[Instance]) -> str:
+    """Content key of a scene built in memory: everything that changes its picture (geometry,
+    material, texture, placement and shadow flags), as a file's key covers its bytes. The
+    renderer's upload cache is keyed by it, so two scenes with one key must draw alike."""
+    parts: list[bytes] = []
+    for p in primitives:
+        m = p.material
+        parts += [a.tobytes() if a is not None else b"-"
+                  for a in (p.positions, p.normals, p.indices, p.uv, p.colors, m.base_color,
+                            m.texture)]
+        parts.append(f"{m.alpha_mode}:{m.alpha_cutoff!r}:{m.double_sided}".encode())
+    for i in instances:
+        parts.append(i.matrix.tobytes())
+        parts.append(np.array([i.primitive, i.cast_shadow, i.receive_shadow], np.int64).tobytes())
+    # Each part length-prefixed, so that no two different scenes hash the same bytes.
+    return "built:" + content_key(b"".join(len(x).to_bytes(8, "little") + x for x in parts))
 
 
 def scene_from_meshes(meshes: list, names: list[str] | None = None) -> Scene:
@@ -652,5 +787,4 @@ def scene_from_meshes(meshes: list, names: list[str] | None = None) -> Scene:
         )
     if not instances:
         raise SceneError("the scene has no triangles to render")
-    key = content_key(b"".join(p.positions.tobytes() + p.indices.tobytes() for p in primitives))
-    return Scene(primitives, instances, key=key)
+    return Scene(primitives, instances, key=_built_key(primitives, instances))

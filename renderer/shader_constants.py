@@ -12,6 +12,7 @@ compile instead of silently using numbers that have drifted from Python's.
 - ``LIGHT_DIRECTIONAL``, ``LIGHT_SPOT``, ``LIGHT_POINT``: the light type ids of
   :data:`LIGHT_TYPES`, the values of the camera pass's ``LIGHT_TYPES`` list.
 - ``MAX_LIGHTS``: lights one camera pass shades (:data:`.limits.MAX_LIGHTS`).
+- ``MAX_CASCADES``: cascades of one directional light (:data:`.limits.MAX_CASCADES`).
 - ``FOR_EACH_SLOT(X)``: expands to ``X(0) X(1) ... X(MAX_LIGHTS - 1)``; the shadow chunks build
   their per-map dispatch from it, so that every sampler array is indexed by a constant (dynamic
   indexing of sampler arrays is where drivers differ).
@@ -24,7 +25,7 @@ from functools import lru_cache
 import numpy as np
 
 from . import encodings
-from .limits import MAX_LIGHTS
+from .limits import MAX_CASCADES, MAX_LIGHTS
 
 #: Light type -> the id the camera pass's ``LIGHT_TYPES`` define lists per light.
 LIGHT_TYPES: dict[str, int] = {"directional": 0, "spot": 1, "point": 2}
@@ -61,5 +62,6 @@ def shader_constants() -> tuple[tuple[str, str], ...]:
     for name, ident in sorted(LIGHT_TYPES.items(), key=lambda kv: kv[1]):
         out.append((f"LIGHT_{name.upper()}", str(ident)))
     out.append(("MAX_LIGHTS", str(MAX_LIGHTS)))
+    out.append(("MAX_CASCADES", str(MAX_CASCADES)))
     out.append(("FOR_EACH_SLOT(X)", " ".join(f"X({k})" for k in range(MAX_LIGHTS))))
     return tuple(out)

@@ -6,11 +6,16 @@ settings the way this project's tests and benchmarks do:
 - :func:`measure`: render a scene's visibility and compare every light with the ray-traced
   reference (needs ``embreex``, the ``reference`` extra).
 - Scene builders for stiff and extreme cases: a caster over a ground plane at any scale and
-  offset, grazing light, thin sheets, contact, a room for point lights, many small objects.
+  offset, grazing light, thin sheets, contact, a room for point lights, many small objects; and
+  large scenes seen from the ground (:func:`terrain_to_horizon`, :func:`small_caster_on_huge_plane`,
+  :func:`city_grid`), each with the camera it is meant to be seen from.
+- :func:`band_metrics`: the shadow error in bands of camera distance (near, middle, far).
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -209,6 +214,107 @@ def pebbles_on_a_plain(size: float = 400.0) -> Scene:
     return scene_from_meshes(meshes, ["ground"] + [f"pebble_{i}" for i in range(7)])
 
 
+@dataclass(frozen=True)
+class LargeScene:
+    """A large scene and how it is meant to be seen.
+
+    Attributes
+    ----------
+    scene : Scene
+    camera : dict
+        The request's ``camera`` (eye, target).
+    light : dict
+        A directional light (the request's ``lights`` entry).
+    bands : tuple of float
+        Camera distances that separate the bands of :func:`band_metrics`.
+    """
+
+    scene: Scene
+    camera: dict
+    light: dict
+    bands: tuple[float, ...]
+
+
+def terrain_to_horizon(size: float = 1000.0) -> LargeScene:
+    """A ``size``-unit ground and boxes from 4 to 400 units away, seen from 2 units up looking
+    toward the horizon: one map over the whole view leaves nothing for the near boxes."""
+    meshes = [_plane(size)]
+    names = ["terrain"]
+    for k, z in enumerate((4, 7, 12, 20, 35, 60, 100, 170, 280, 400)):
+        side = 0.4 + 0.02 * z  # farther boxes are larger, so each spans a few pixels
+        for x in (-1.5, 1.5):
+            meshes.append(_box((side, side * 2, side), (x * (1 + z / 12), side, -z)))
+            names.append(f"box_{k}_{'lr'[x > 0]}")
+    camera = {"eye": [0.0, 2.0, 2.0], "target": [0.0, 0.6, -30.0]}
+    light = {"type": "directional", "direction": [0.6, -0.5, 0.45]}
+    return LargeScene(scene_from_meshes(meshes, names), camera, light, (15.0, 80.0))
+
+
+def small_caster_on_huge_plane(size: float = 10_000.0) -> LargeScene:
+    """A 1-unit box on a ``size``-unit ground, both in one mesh (one instance, one box over the
+    whole plane for the planner), seen from a few units away."""
+    import trimesh
+
+    mesh = trimesh.util.concatenate([_plane(size), _box((1, 1, 1), (0, 0.5, 0))])
+    camera = {"eye": [3.0, 2.5, 4.0], "target": [0.0, 0.3, 0.0]}
+    light = {"type": "directional", "direction": [0.5, -1.0, 0.7]}
+    return LargeScene(scene_from_meshes([mesh], ["ground_and_box"]), camera, light, (8.0, 40.0))
+
+
+def city_grid(n: int = 1000, pitch: float = 12.0, seed: int = 5) -> LargeScene:
+    """``n`` boxes (blocks 4-8 units wide, 4-30 tall) on a square grid of streets over a ground,
+    seen from street level (1.7 units up) along a street."""
+    rng = np.random.default_rng(seed)
+    side = int(math.ceil(math.sqrt(n)))
+    meshes = [_plane(side * pitch * 1.5)]
+    names = ["ground"]
+    half = (side - 1) / 2
+    for k in range(n):
+        i, j = divmod(k, side)
+        w, d = rng.uniform(4, 8, 2)
+        h = rng.uniform(4, 30)
+        centre = ((i - half) * pitch, h / 2, (j - half) * pitch)
+        meshes.append(_box((w, h, d), centre))
+        names.append(f"block_{i}_{j}")
+    street = (0.5 - half % 1) * pitch  # the x of a street between two rows of blocks
+    camera = {"eye": [street, 1.7, half * pitch], "target": [street, 4.0, -half * pitch]}
+    light = {"type": "directional", "direction": [-0.45, -0.75, -0.5]}
+    return LargeScene(scene_from_meshes(meshes, names), camera, light, (30.0, 150.0))
+
+
+def band_metrics(rendered: np.ndarray, reference: object, bands: Sequence[float],
+                 light: int = 0) -> list:
+    """Shadow metrics of one light in bands of camera distance.
+
+    Parameters
+    ----------
+    rendered : ndarray, shape (H, W, L)
+        ``RenderResult.visibility``.
+    reference : ReferenceResult
+        Its depth (camera z) decides the band of each pixel.
+    bands : sequence of float
+        Increasing distances: ``k`` of them make ``k + 1`` bands (near to far).
+    light : int
+
+    Returns
+    -------
+    list of ShadowMetrics
+        One per band, near first.
+    """
+    from .metrics import shadow_metrics
+
+    ref: Any = reference  # a ReferenceResult (imported lazily: it needs embreex)
+    depth = np.asarray(ref.depth, np.float64)
+    valid = np.asarray(ref.valid)[..., light].astype(np.bool_)
+    vis_ref = np.asarray(ref.visibility)[..., light]
+    edges = [0.0, *bands, np.inf]
+    out = []
+    for lo, hi in itertools.pairwise(edges):
+        band = valid & (depth >= lo) & (depth < hi)
+        out.append(shadow_metrics(rendered[..., light], vis_ref, band))
+    return out
+
+
 def ground_only_receives() -> Scene:
     """The caster-on-ground scene with ``castShadow = false`` on the ground (three.js extras)."""
     scene = caster_on_ground()
@@ -217,7 +323,12 @@ def ground_only_receives() -> Scene:
 
 
 __all__ = [
+    "LargeScene",
     "Measurement",
+    "band_metrics",
+    "city_grid",
+    "small_caster_on_huge_plane",
+    "terrain_to_horizon",
     "caster_on_ground",
     "degenerate_geometry",
     "grazing_plane",

@@ -7,8 +7,12 @@
 #define LIGHT_TYPES         // a LIGHT_* id per light, comma-separated
 #define LIGHT_MAPS_2D       // each light's slot among the 2D maps (-1: none), comma-separated
 #define LIGHT_MAPS_CUBE     // each light's slot among the cube maps (-1: none), comma-separated
+#define LIGHT_MAPS_CSM      // each light's slot among the cascaded maps (-1: none), comma-separated
+#define LIGHT_CASCADES      // each light's number of cascades (0: not cascaded), comma-separated
 #define NUM_MAPS_2D 0
 #define NUM_MAPS_CUBE 0
+#define NUM_MAPS_CSM 0      // cascaded directional lights (one array texture each)
+#define CASCADE_TINT 0      // tint the colour by the cascade read (debug)
 #define HAS_SPOT 0          // uniforms of spot cones
 #define HAS_POSITIONAL 0    // uniforms of light positions and ranges
 #define HAS_UV 0            // base colour texture
@@ -24,6 +28,7 @@
 #include "chunks/lighting.glsl"
 #include "chunks/shadow_2d.glsl"
 #include "chunks/shadow_cube.glsl"
+#include "chunks/shadow_csm.glsl"
 
 in vec3 v_world;
 in vec3 v_normal;
@@ -49,8 +54,12 @@ uniform float u_shininess;
 // lights that have a map.
 const int LIGHT_MAP_2D[NUM_LIGHTS] = int[NUM_LIGHTS](LIGHT_MAPS_2D);
 const int LIGHT_MAP_CUBE[NUM_LIGHTS] = int[NUM_LIGHTS](LIGHT_MAPS_CUBE);
+#if NUM_MAPS_CSM > 0
+const int LIGHT_MAP_CSM[NUM_LIGHTS] = int[NUM_LIGHTS](LIGHT_MAPS_CSM);
+const int LIGHT_CASCADE[NUM_LIGHTS] = int[NUM_LIGHTS](LIGHT_CASCADES);
 #endif
-#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
+#endif
+#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0 || NUM_MAPS_CSM > 0
 uniform int u_receive_shadow;
 #endif
 
@@ -93,17 +102,26 @@ void main() {
     vec3 color = u_ambient * base.rgb;
     float vis[VIS_SIZE];
     for (int k = 0; k < VIS_SIZE; ++k) vis[k] = 1.0;
+#if NUM_MAPS_CSM > 0
+    float view_z = dot(p - u_camera_position, u_camera_forward);
+    int cascade_read = -1;  // the cascade the first cascaded light read (CASCADE_TINT)
+#endif
 #if NUM_LIGHTS > 0
     for (int i = 0; i < NUM_LIGHTS; ++i) {
         vec3 l;
         float atten = light_attenuation(i, p, l);
         float shadow = 1.0;
-#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
+#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0 || NUM_MAPS_CSM > 0
         int m2 = LIGHT_MAP_2D[i];
         int mc = LIGHT_MAP_CUBE[i];
+#if NUM_MAPS_CSM > 0
+        int ms = LIGHT_MAP_CSM[i];
+#else
+        int ms = -1;
+#endif
         // Outside a spot's cone nothing is lit: no lookup, and the visibility reads 1 there
         // whether or not the plan gave this light a map.
-        if ((m2 != -1 || mc != -1) && u_receive_shadow != 0 && atten > 0.0) {
+        if ((m2 != -1 || mc != -1 || ms != -1) && u_receive_shadow != 0 && atten > 0.0) {
             // The side of the surface that faces this light, for the normal offset and the slope.
             vec3 ngl = dot(ng, l) < 0.0 ? -ng : ng;
             float cos_l = max(dot(ngl, l), 1e-4);
@@ -114,6 +132,14 @@ void main() {
 #if NUM_MAPS_CUBE > 0
             if (mc != -1) shadow = visibility_cube(mc, p, ngl, cos_l, tan_l);
 #endif
+#if NUM_MAPS_CSM > 0
+            if (ms != -1) {
+                int chosen;
+                shadow = visibility_csm(ms, LIGHT_CASCADE[i], view_z, p, ngl, cos_l, tan_l,
+                                        chosen);
+                if (cascade_read < 0) cascade_read = chosen;
+            }
+#endif
         }
 #endif
         vis[i] = shadow;
@@ -122,6 +148,12 @@ void main() {
         float spec = diffuse > 0.0 ? u_specular * pow(max(dot(n, h), 0.0), u_shininess) : 0.0;
         color += shadow * atten * u_light_radiance[i] * (diffuse * base.rgb + spec);
     }
+#endif
+#if CASCADE_TINT && NUM_MAPS_CSM > 0
+    // Red, green, blue, yellow from the nearest cascade; untinted where no cascade was read.
+    const vec3 TINT[4] = vec3[4](vec3(1.0, 0.55, 0.55), vec3(0.55, 1.0, 0.55),
+                                 vec3(0.55, 0.65, 1.0), vec3(1.0, 1.0, 0.45));
+    if (cascade_read >= 0) color *= TINT[cascade_read % 4];
 #endif
     o_color = vec4(linear_to_srgb(color), base.a);
 #if OUT_VISIBILITY > 0

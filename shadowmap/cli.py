@@ -131,8 +131,28 @@ def _serve(args: argparse.Namespace) -> int:
         return _fail(f"serving needs the server extra ({exc.name or exc} is missing): "
                      "pip install 'shadowmap-service[server]'", 4)
 
-    run(host=args.host, port=args.port, workers=args.workers)
+    from pydantic import ValidationError
+
+    overrides = {name: getattr(args, name) for name in SERVE_SETTINGS}
+    try:
+        run(host=args.host, port=args.port, workers=args.workers, **overrides)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "settings"
+        return _fail(f"invalid setting: {where}: {first['msg']}")
     return 0
+
+
+#: ``serve`` options that set a service setting (``--upload-timeout`` is ``upload_timeout``, the
+#: same as ``SHADOWMAP_UPLOAD_TIMEOUT``), with their type and help.
+SERVE_SETTINGS: dict[str, tuple[type, str]] = {
+    "upload_timeout": (float, "seconds a client may take to send the request body (408 after)"),
+    "keep_alive_timeout": (int, "seconds an idle connection stays open, and a new one may take "
+                           "to send its request head"),
+    "limit_concurrency": (int, "most connections at once (more get 503)"),
+    "shutdown_timeout": (float, "seconds a shutdown waits for running requests; a render still "
+                         "running then is stopped"),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -164,7 +184,12 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("serve", help="run the HTTP service")
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=int, default=8000)
-    s.add_argument("--workers", type=int, default=1, help="worker processes (one GL context each)")
+    s.add_argument("--workers", type=int, default=1,
+                   help="server processes (each with its own render worker process)")
+    for name, (kind, text) in SERVE_SETTINGS.items():
+        s.add_argument("--" + name.replace("_", "-"), type=kind, default=None, dest=name,
+                       help=f"{text} (default: $SHADOWMAP_{name.upper()}, else the setting's "
+                       "default)")
     s.set_defaults(func=_serve)
     return parser
 

@@ -117,6 +117,28 @@ def test_help_touches_no_gl_platform():
     assert proc.returncode == 0, proc.stderr
 
 
+@pytest.mark.gl
+def test_a_render_imports_no_mesh_or_viewer_stack(models, tmp_path):
+    """A command-line render of a glTF file loads pyrender's offscreen platform alone: not the
+    pyrender package, trimesh, scipy or pyglet (about 1.2 s of start-up together), and a later
+    ``import pyrender`` still gets the whole package."""
+    duck = str(models / "Duck.glb")
+    code = (
+        "import sys\n"
+        "from shadowmap.cli import main\n"
+        f"main(['render', {duck!r}, '--out', {str(tmp_path)!r}])\n"
+        "loaded = sorted(m for m in ('pyrender', 'trimesh', 'scipy', 'pyglet', 'networkx')\n"
+        "                if m in sys.modules)\n"
+        "assert not loaded, loaded\n"
+        "import pyrender\n"
+        "assert hasattr(pyrender, 'OffscreenRenderer')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "color.png").is_file()
+
+
 def test_namespace_wins_over_a_users_own_app_package(tmp_path):
     """A user's own ``app`` and ``renderer`` packages in the working directory do not shadow
     ours: everything is installed under ``shadowmap``."""

@@ -133,7 +133,10 @@ def _three_lights(scene) -> dict[str, list[dict]]:
 #: Known gaps, measured at 640x480 under the directional light (spot and point pass): the test
 #: fails the day they are fixed, so the mark must then go.
 KNOWN_GAPS = {
-    "Fox.glb": "directional IoU 0.880: 10.8 % of the true shadow missed (thin skinned legs)",
+    # A 3-pixel strip along the top of the pedestal's front face, which is nearly parallel to the
+    # light, under the lip of its rim: the slope-scaled bias that keeps grazing receivers free
+    # of acne lifts the strip out of the shadow (0.976 with map_size 4096; slope_max 3: 0.947).
+    "Fox.glb": "directional IoU 0.880: the shadow on a grazing receiver under a lip is missed",
     "AlphaBlendModeTest.glb": "directional IoU 0.967: blended materials cast at alpha 0.5",
 }
 

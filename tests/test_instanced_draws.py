@@ -164,7 +164,7 @@ def test_poses_are_exactly_the_shifted_matrices(renderer, boxes):
         shift[:3, 3] = -gpu.origin
         for gp in gpu.primitives:
             expected = np.stack([shift @ boxes.instances[i].matrix for i in gp.instances])
-            assert np.array_equal(gp.mesh.poses, expected.astype(np.float32))
+            assert np.array_equal(gp.mesh.read_poses(), expected.astype(np.float32))
     finally:
         gpu.release()
 

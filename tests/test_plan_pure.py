@@ -399,8 +399,10 @@ def seen_support(ctx: PlanContext, d: np.ndarray) -> float:
 
 
 def ray_hits(bounds: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
-             t_max: float) -> np.ndarray:
-    """(P, N) bool: whether the ray ``origins + t dirs``, 0 <= t <= t_max, meets each box."""
+             t_max: float, exits: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """(P, N) bool: whether the ray ``origins + t dirs``, 0 <= t <= t_max, meets each box; with
+    ``exits`` also the (P, N) ray parameter where it leaves each box (its end nearest the
+    light)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1 / dirs[:, None, :]  # (P, 1, 3)
         t0 = (bounds[None, :, 0] - origins[:, None]) * inv
@@ -410,7 +412,8 @@ def ray_hits(bounds: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
     inside = (origins[:, None] >= bounds[None, :, 0]) & (origins[:, None] <= bounds[None, :, 1])
     lo = np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1)).max(axis=2)
     hi = np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1)).min(axis=2)
-    return (lo <= hi) & (hi >= 0) & (lo <= t_max)
+    hit = (lo <= hi) & (hi >= 0) & (lo <= t_max)
+    return (hit, np.minimum(hi, t_max)) if exits else hit
 
 
 def small_field() -> Scene:
@@ -487,8 +490,14 @@ def test_maps_cover_every_seen_receiver_point_and_its_casters(name):
         ndc = clip[:, :2] / clip[:, 3:]
         assert np.all(np.abs(ndc) <= 1), np.abs(ndc).max()
     if lp.kind == "ortho":
-        corners = transform_points(lp.view, ctx.corners[needed])
-        assert np.all(-corners[..., 2] >= lp.near)
+        # Where each ray from a shadowable point toward the light leaves each caster it meets
+        # (the caster's surface nearest the light along that ray) lies inside the depth range;
+        # a caster's box corners elsewhere, outside the map's window, need not.
+        d = np.broadcast_to(-lt.direction, sample.shape)
+        met, t_exit = ray_hits(ctx.bounds[needed], sample, d, np.inf, exits=True)
+        far_pts = sample[:, None, :] + t_exit[..., None] * d[:, None, :]
+        depth = -transform_points(lp.view, far_pts[met])[:, 2]
+        assert len(depth) and np.all(depth >= lp.near), (depth.min(), lp.near)
 
 
 def test_directional_map_covers_only_the_seen_part_of_a_large_field():

@@ -150,6 +150,38 @@ def test_oblique_sun_matches_slab_test():
     assert (got == expected).mean() >= 0.995
 
 
+@pytest.mark.parametrize("offset", [0.0, 1e6])
+def test_a_small_casters_shadow_on_a_huge_plane(offset):
+    """A 1-unit box on a 10,000-unit plane in one mesh, seen from a few units away: shadow-ray
+    offsets from the local geometry keep the box's contact and edges in the truth (an offset
+    of a fixed fraction of the scene, 1e-5 of its diagonal, lifts the rays 0.14 units)."""
+    h = 0.5
+    big = quad(5000.0, 0.0)
+    cube = box((-h, 0.0, -h), (h, 1.0, h))
+    mesh = trimesh.util.concatenate([big, cube])
+    mesh.apply_translation([offset, 0.0, offset])
+    scene = scene_from_meshes([mesh])
+    shift = np.array([offset, 0.0, offset])
+    cam = camera(eye=np.array([3.0, 2.5, 4.0]) + shift, target=np.array([0.0, 0.3, 0.0]) + shift,
+                 w=320, h=240, znear=0.5, zfar=200.0)
+    d = np.array([0.5, -1.0, 0.7])
+    ref = trace_reference(scene, cam, [directional(d)])
+    o, rays = cam.pixel_rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -o[:, 1] / rays[:, 1]
+    g = o + rays * t[:, None]
+    depth = t * (rays @ -cam.pose[:3, 2])
+    on_ground = ((t > 0) & np.isclose(ref.depth.ravel(), depth, rtol=1e-5)).reshape(240, 320)
+    gp = g.reshape(240, 320, 3)[on_ground]
+    expected = segment_hits_box(gp, gp - d / np.linalg.norm(d) * 1e3, shift + (-h, 0, -h),
+                                shift + (h, 1.0, h))
+    got = ref.visibility[..., 0][on_ground] < 0.5
+    assert expected.sum() > 1000
+    # Mismatches only at the outline (a pixel wide at most), none inside the shadow.
+    assert (got == expected).mean() >= 0.999
+    assert (got & expected).sum() >= 0.995 * expected.sum()
+
+
 def test_no_geometry_pixels_are_nan_and_invalid():
     scene = scene_from_meshes([box()])
     cam = camera(eye=(0, 1.5, 2.5), target=(0, 1.5, 0))

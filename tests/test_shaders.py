@@ -274,6 +274,7 @@ def test_camera_pass_pulls_in_its_chunks_once():
     assert frag.files == (
         "camera_pass.frag", GENERATED, "chunks/lighting.glsl", "chunks/shadow_2d.glsl",
         "chunks/shadow_lookup.glsl", "chunks/depth_encoding.glsl", "chunks/shadow_cube.glsl",
+        "chunks/shadow_csm.glsl",
     )
     assert frag.text.count("vec4 encode_depth(float t)") == 1
 

@@ -1,12 +1,13 @@
-"""``POST /render``: validate, queue to the GL thread, encode the result."""
+"""``POST /render``: validate, queue to the render worker, answer with what it encoded."""
 
 from __future__ import annotations
 
+import re
+import time
 from typing import Annotated
 
-from fastapi import APIRouter, Header
+from fastapi import APIRouter, Header, Request
 from fastapi.responses import Response
-from starlette.concurrency import run_in_threadpool
 
 from ..deps import RENDER_REQUEST_BODY, RenderInputDep, WorkerDep
 from ..encode import (
@@ -15,7 +16,6 @@ from ..encode import (
     WARNING_ITEM_MAX,
     WARNINGS_HEADER_MAX,
     RenderJSON,
-    build_response,
     choose_format,
 )
 from ..errors import ErrorBody, ServiceError
@@ -54,6 +54,8 @@ RESPONSES: dict = {
         },
     },
     400: {"model": ErrorBody, "description": "invalid or unsafe scene file, bad zip"},
+    408: {"model": ErrorBody, "description": "the body did not arrive within `upload_timeout` "
+          "(the connection is closed)"},
     406: {"model": ErrorBody, "description": "no acceptable response format"},
     413: {"model": ErrorBody, "description": "upload (or unpacked zip) over the limit"},
     415: {"model": ErrorBody, "description": "unsupported request body type"},
@@ -61,9 +63,15 @@ RESPONSES: dict = {
           "scene that needs a glTF extension (`unsupported_extension`, listed in `extensions`) or "
           "version (`unsupported_version`, `field`) this renderer does not implement"},
     500: {"model": ErrorBody, "description": "OpenGL failure"},
-    503: {"model": ErrorBody, "description": "queue full or renderer down (see Retry-After)"},
-    504: {"model": ErrorBody, "description": "the render ran past the time limit"},
+    503: {"model": ErrorBody, "description": "not queued: `queue_full` (the expected wait is over "
+          "`max_expected_wait`, or `queue_size` renders wait), `render_timeout` (the time ran out "
+          "in the queue), `worker_restarted` (the worker died during this render), `unavailable` "
+          "or `shutting_down`; always with Retry-After"},
+    504: {"model": ErrorBody, "description": "the render ran past `render_timeout` and was stopped "
+          "(its worker process is replaced)"},
 }
+
+_TOTAL = re.compile(r"(^|, )total;dur=[0-9.]+$")
 
 router = APIRouter(tags=["render"])
 
@@ -76,6 +84,7 @@ router = APIRouter(tags=["render"])
     openapi_extra={"requestBody": RENDER_REQUEST_BODY},
 )
 async def render(
+    request: Request,
     inp: RenderInputDep,
     worker: WorkerDep,
     accept: Annotated[str | None, Header(description="image/png, multipart/mixed or "
@@ -99,13 +108,16 @@ async def render(
     if media == MEDIA_PNG and outputs != ["color"]:
         # The PNG response holds only the colour image: skip rendering and reading back the rest.
         params = params.model_copy(update={"outputs": ["color"]})
-    outcome = await worker.render(inp.upload, params)
-    before = {"read": inp.read_seconds, "queue": outcome.queue, "parse": outcome.parse}
-    notes = {"parse": "scene cache hit"} if outcome.cache_hit else {}
-    # PNG encoding is CPU work: off the event loop, and off the GL thread so it overlaps the
-    # next render.
-    return await run_in_threadpool(build_response, media, outcome.result, outputs, before, notes,
-                                   inp.started)
+    # The worker process renders and encodes: the images never enter this process.
+    reply = await worker.render(inp.upload, params, media, outputs, inp.read_seconds,
+                                inp.started, disconnected=request.is_disconnected)
+    headers = dict(reply.headers)
+    timing = headers.get("server-timing")
+    if timing is not None:
+        # The worker's total ends before its answer crossed the pipe; this one is the request's.
+        total = f"total;dur={(time.perf_counter() - inp.started) * 1000.0:.2f}"
+        headers["server-timing"] = _TOTAL.sub(lambda m: m.group(1) + total, timing)
+    return Response(reply.body, media_type=reply.media_type, headers=headers)
 
 
 # Referenced from the 200 response above; registered in the OpenAPI components by main.py.

@@ -6,7 +6,12 @@ imported; :class:`~shadowmap.renderer.Renderer` selects it explicitly before imp
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+import sys
 import threading
+from pathlib import Path
+from types import ModuleType
 
 from OpenGL import GL
 
@@ -28,14 +33,11 @@ class GLContext:
         self.platform = select_platform(platform)
         self.thread = threading.get_ident()
         try:
+            module = pyrender_platform(self.platform)
             if self.platform == "egl":
-                from pyrender.platforms import egl
-
-                self._platform = egl.EGLPlatform(16, 16, device=egl.get_device_by_index(0))
+                self._platform = module.EGLPlatform(16, 16, device=module.get_device_by_index(0))
             else:
-                from pyrender.platforms.osmesa import OSMesaPlatform
-
-                self._platform = OSMesaPlatform(16, 16)
+                self._platform = module.OSMesaPlatform(16, 16)
             self._platform.init_context()
             self._platform.make_current()
             if self.platform == "egl":
@@ -78,6 +80,44 @@ class GLContext:
 
     def info(self) -> dict:
         return {"platform": self.platform, "renderer": self.renderer, "version": self.version}
+
+
+_PLATFORMS_PACKAGE = "shadowmap.renderer.gl._pyrender_platforms"
+
+
+def pyrender_platform(name: str) -> ModuleType:
+    """pyrender's offscreen platform module ``pyrender.platforms.<name>`` (``egl``, ``osmesa``).
+
+    Importing the ``pyrender`` package imports its scene graph and viewer, and with them trimesh,
+    scipy, networkx and pyglet (about 1.2 s of a 3 s command-line render here), while a context
+    needs only ``pyrender/platforms/``, whose modules import nothing from pyrender outside that
+    folder. So, unless pyrender is imported already, the folder is loaded as a package of its own
+    (under a private name, so a later ``import pyrender`` still gets the whole package).
+
+    Raises
+    ------
+    RenderError
+        pyrender is not installed.
+    """
+    if "pyrender" in sys.modules:
+        return importlib.import_module(f"pyrender.platforms.{name}")
+    if _PLATFORMS_PACKAGE not in sys.modules:
+        spec = importlib.util.find_spec("pyrender")  # finds the package without running it
+        if spec is None or not spec.submodule_search_locations:
+            raise RenderError("pyrender is not installed (pip install pyrender2)")
+        folder = Path(next(iter(spec.submodule_search_locations))) / "platforms"
+        pkg_spec = importlib.util.spec_from_file_location(
+            _PLATFORMS_PACKAGE, folder / "__init__.py", submodule_search_locations=[str(folder)])
+        if pkg_spec is None or pkg_spec.loader is None:
+            raise RenderError(f"cannot load pyrender's platforms from {folder}")
+        package = importlib.util.module_from_spec(pkg_spec)
+        sys.modules[_PLATFORMS_PACKAGE] = package
+        try:
+            pkg_spec.loader.exec_module(package)
+        except BaseException:
+            del sys.modules[_PLATFORMS_PACKAGE]
+            raise
+    return importlib.import_module(f"{_PLATFORMS_PACKAGE}.{name}")
 
 
 def check_gl(where: str) -> None:

@@ -466,6 +466,8 @@ _SAMPLERS = (
     GL.GL_SAMPLER_2D_SHADOW,
     GL.GL_SAMPLER_CUBE,
     GL.GL_SAMPLER_CUBE_SHADOW,
+    GL.GL_SAMPLER_2D_ARRAY,
+    GL.GL_SAMPLER_2D_ARRAY_SHADOW,
 )
 _SETTERS: dict[int, tuple] = {
     GL.GL_FLOAT: (GL.glUniform1fv, 1, np.float32),

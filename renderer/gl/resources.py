@@ -1,24 +1,160 @@
 """GL resources owned explicitly: uploaded scenes and framebuffers.
 
-Meshes and textures are uploaded with pyrender's ``Primitive`` and ``Texture``. Every object here
-belongs to the :class:`~shadowmap.renderer.gl.context.GLContext` current when it was made, is used
-from that context's thread only, and is freed by its ``release()`` (safe to call twice).
+Meshes are uploaded as one vertex array each (interleaved vertex attributes, an instance buffer
+of model matrices, uint32 indices) and base-colour images as mipmapped RGBA8 textures. Every
+object here belongs to the :class:`~shadowmap.renderer.gl.context.GLContext` current when it
+was made, is used from that context's thread only, and is freed by its ``release()`` (safe to
+call twice).
 """
 
 from __future__ import annotations
 
+import ctypes
 import itertools
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
-import pyrender
 from OpenGL import GL
 
 from ..errors import RenderError
 from ..plan.instances import scene_box
 from ..scene import Material, Scene, instance_arrays
+
+# --------------------------------------------------------------------------------------------
+# Vertex arrays and textures
+# --------------------------------------------------------------------------------------------
+
+_FLOAT = 4  # bytes
+
+
+class VertexArray:
+    """A vertex array object with its buffers: interleaved float32 attributes at locations
+    0, 1, ... in the order given, an instance buffer of model matrices at the next four
+    locations (one ``vec4`` column each, divisor 1), and uint32 triangle indices.
+
+    Parameters
+    ----------
+    attributes : sequence of ndarray, each shape (N, k)
+        Per-vertex attributes (positions first); ``None`` entries are left out.
+    poses : ndarray, shape (K, 4, 4)
+        Model matrices, one per instance.
+    indices : ndarray, shape (F, 3)
+    """
+
+    def __init__(self, attributes: Sequence[np.ndarray | None], poses: np.ndarray,
+                 indices: np.ndarray) -> None:
+        columns = [np.asarray(a, np.float32) for a in attributes if a is not None]
+        vertices = np.ascontiguousarray(np.hstack(columns), dtype=np.float32)
+        self.vao = int(GL.glGenVertexArrays(1))
+        self.buffers: list[int] = []
+        GL.glBindVertexArray(self.vao)
+        try:
+            self._buffer(GL.GL_ARRAY_BUFFER, vertices)
+            stride = vertices.shape[1] * _FLOAT
+            offset = 0
+            for loc, a in enumerate(columns):
+                GL.glVertexAttribPointer(loc, a.shape[1], GL.GL_FLOAT, GL.GL_FALSE, stride,
+                                         ctypes.c_void_p(offset))
+                GL.glEnableVertexAttribArray(loc)
+                offset += a.shape[1] * _FLOAT
+            #: the first of the four model-matrix locations
+            self.loc_model = len(columns)
+            # Column-major, as GLSL reads a mat4 attribute.
+            self.instances = len(poses)
+            self.model_buffer = self._buffer(
+                GL.GL_ARRAY_BUFFER, np.ascontiguousarray(np.transpose(poses, (0, 2, 1)),
+                                                         np.float32))
+            for i in range(4):
+                loc = self.loc_model + i
+                GL.glEnableVertexAttribArray(loc)
+                GL.glVertexAttribPointer(loc, 4, GL.GL_FLOAT, GL.GL_FALSE, 16 * _FLOAT,
+                                         ctypes.c_void_p(4 * _FLOAT * i))
+                GL.glVertexAttribDivisor(loc, 1)
+            self._buffer(GL.GL_ELEMENT_ARRAY_BUFFER, np.ascontiguousarray(indices, np.uint32))
+        except BaseException:
+            GL.glBindVertexArray(0)
+            self.release()
+            raise
+        GL.glBindVertexArray(0)
+
+    def _buffer(self, target: int, data: np.ndarray) -> int:
+        buf = int(GL.glGenBuffers(1))
+        self.buffers.append(buf)
+        GL.glBindBuffer(target, buf)
+        GL.glBufferData(target, data.nbytes, data, GL.GL_STATIC_DRAW)
+        return buf
+
+    def read_poses(self) -> np.ndarray:
+        """The model matrices as the GPU holds them (read back, for checks).
+
+        Returns
+        -------
+        ndarray, shape (K, 4, 4), float32
+        """
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self.model_buffer)
+        raw = GL.glGetBufferSubData(GL.GL_ARRAY_BUFFER, 0, self.instances * 16 * _FLOAT)
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, 0)
+        cols = np.frombuffer(bytes(raw), np.float32).reshape(self.instances, 4, 4)
+        return np.ascontiguousarray(np.transpose(cols, (0, 2, 1)))
+
+    def bind(self) -> None:
+        GL.glBindVertexArray(self.vao)
+
+    @staticmethod
+    def unbind() -> None:
+        GL.glBindVertexArray(0)
+
+    def release(self) -> None:
+        """Delete the vertex array and its buffers. Safe to call twice."""
+        if self.vao:
+            GL.glDeleteVertexArrays(1, [self.vao])
+            self.vao = 0
+        if self.buffers:
+            GL.glDeleteBuffers(len(self.buffers), self.buffers)
+            self.buffers = []
+
+
+class Texture2D:
+    """A mipmapped RGBA8 texture of an image, repeated in both directions, trilinear.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 4), uint8
+        Rows top to bottom, as stored in the file; uploaded bottom row first, so that texture
+        coordinate v = 0 is the image's bottom row (the convention of ``Primitive.uv``).
+    """
+
+    def __init__(self, image: np.ndarray) -> None:
+        data = np.ascontiguousarray(image[::-1], dtype=np.uint8)
+        h, w = data.shape[:2]
+        self.id = int(GL.glGenTextures(1))
+        GL.glBindTexture(GL.GL_TEXTURE_2D, self.id)
+        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA8, w, h, 0, GL.GL_RGBA,
+                        GL.GL_UNSIGNED_BYTE, data)
+        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 4)
+        GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER,
+                           GL.GL_LINEAR_MIPMAP_LINEAR)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, GL.GL_REPEAT)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        #: bytes on the GPU, the mip chain included
+        self.nbytes = data.nbytes * 4 // 3
+
+    def bind(self) -> None:
+        """Bind to ``GL_TEXTURE_2D`` of the active texture unit."""
+        GL.glBindTexture(GL.GL_TEXTURE_2D, self.id)
+
+    def release(self) -> None:
+        """Delete the texture. Safe to call twice."""
+        if self.id:
+            GL.glDeleteTextures([self.id])
+            self.id = 0
+
 
 # --------------------------------------------------------------------------------------------
 # Scene upload
@@ -36,13 +172,16 @@ class GpuPrimitive:
 
     Attributes
     ----------
-    mesh : pyrender.Primitive
+    mesh : VertexArray
     instances : ndarray, shape (K,), intp
         Indices into :attr:`Scene.instances`, in instance-buffer order (read-only).
-    texture : pyrender.Texture or None
+    texture : Texture2D or None
+        The base-colour texture (shared by the primitives of one image).
     loc_uv, loc_color, loc_model : int
-        Attribute locations of pyrender's interleaved layout (positions 0, normals 1, then
-        texture coordinates and colours when present, then the 4 columns of the model matrix).
+        Attribute locations of the interleaved layout (positions 0, normals 1, then texture
+        coordinates and colours when present, then the 4 columns of the model matrix).
+    has_color : bool
+        The primitive has per-vertex colours (at ``loc_color``).
     count : int
         Indices per instance.
     mirrored_from : int
@@ -56,12 +195,13 @@ class GpuPrimitive:
         ``glMultiDrawElementsIndirect`` (GL 4.3): one call per run of slots instead.
     """
 
-    mesh: pyrender.Primitive
+    mesh: VertexArray
     instances: np.ndarray
-    texture: pyrender.Texture | None
+    texture: Texture2D | None
     loc_uv: int
     loc_color: int
     loc_model: int
+    has_color: bool
     count: int
     mirrored_from: int
     primitive: int
@@ -84,7 +224,7 @@ class GpuPrimitive:
         Mirrored instances are drawn with clockwise front faces, so that back-face culling, where
         the caller enables it, removes the same faces as for their unmirrored counterparts.
         """
-        self.mesh._bind()
+        self.mesh.bind()
         n = len(self.instances)
         if slots is None and not self.mirrored:
             GL.glDrawElementsInstanced(GL.GL_TRIANGLES, self.count, GL.GL_UNSIGNED_INT, None, n)
@@ -101,7 +241,7 @@ class GpuPrimitive:
                 self._draw_runs(start, length)
                 if mirrored:
                     GL.glFrontFace(GL.GL_CCW)  # GL's default, which every other draw assumes
-        self.mesh._unbind()
+        self.mesh.unbind()
 
     def _draw_runs(self, start: np.ndarray, length: np.ndarray) -> None:
         """Draw the runs ``start[i] .. start[i] + length[i]`` of slots, in that order."""
@@ -119,9 +259,11 @@ class GpuPrimitive:
         self.indirect.draw(commands)
 
     def release(self) -> None:
-        self.mesh.delete()
-        if self.texture is not None and self.texture._in_context():
-            self.texture.delete()
+        """Free the vertex array and the texture (shared textures are freed once: their
+        ``release`` is safe to call twice)."""
+        self.mesh.release()
+        if self.texture is not None:
+            self.texture.release()
 
 
 def _slot_runs(slots: np.ndarray, boundary: int) -> list[tuple[np.ndarray, np.ndarray, bool]]:
@@ -267,7 +409,7 @@ class GpuScene:
         shift[:3, 3] = -origin
         if _has_multi_draw_indirect():
             gs.indirect = IndirectBuffer()
-        textures: dict[int, pyrender.Texture] = {}
+        textures: dict[int, Texture2D] = {}
         try:
             for g, pidx in enumerate(used[by_first].tolist()):
                 prim = scene.primitives[pidx]
@@ -277,39 +419,25 @@ class GpuScene:
                     poses[:, :3, 3] -= origin
                 else:
                     poses = np.matmul(shift, matrices[inst_ids])
-                mesh = pyrender.Primitive(
-                    positions=prim.positions,
-                    normals=prim.normals,
-                    texcoord_0=prim.uv,
-                    color_0=prim.colors,
-                    indices=prim.indices,
-                    poses=poses,
-                )
-                mesh._add_to_context()
+                has_uv = prim.uv is not None
+                has_color = prim.colors is not None
+                mesh = VertexArray((prim.positions, prim.normals, prim.uv, prim.colors),
+                                   poses, prim.indices)
                 tex = None
                 if prim.material.texture is not None:
                     key = id(prim.material.texture)
                     tex = textures.get(key)
                     if tex is None:
-                        tex = pyrender.Texture(
-                            source=prim.material.texture,
-                            source_channels="RGBA",
-                            sampler=pyrender.Sampler(
-                                wrapS=GL.GL_REPEAT, wrapT=GL.GL_REPEAT
-                            ),
-                        )
-                        tex._add_to_context()
-                        textures[key] = tex
-                        gs.nbytes += prim.material.texture.nbytes * 4 // 3
-                has_uv = prim.uv is not None
-                has_color = prim.colors is not None
+                        tex = textures[key] = Texture2D(prim.material.texture)
+                        gs.nbytes += tex.nbytes
                 gp = GpuPrimitive(
                     mesh=mesh,
                     instances=inst_ids,
                     texture=tex,
                     loc_uv=2,
                     loc_color=2 + has_uv,
-                    loc_model=2 + has_uv + has_color,
+                    loc_model=mesh.loc_model,
+                    has_color=has_color,
                     count=int(prim.indices.size),
                     mirrored_from=int(unmirrored[g]),
                     primitive=pidx,
@@ -321,8 +449,7 @@ class GpuScene:
         except Exception:
             gs.release()
             for t in textures.values():
-                if t._in_context():
-                    t.delete()
+                t.release()
             raise
         return gs
 
@@ -405,34 +532,46 @@ class Framebuffer:
     depth : (internal format, is_texture) or None
     cube : bool
         Attachments are cube maps; :meth:`bind_face` selects the face to render.
+    layers : int
+        Attachments are 2D array textures of this many layers (cascades); :meth:`bind_layer`
+        selects the layer to render. 0: plain 2D textures.
     """
 
     def __init__(self, width: int, height: int, colors: Sequence[tuple[int, int, int]],
                  depth: tuple[int, bool] | None, cube: bool = False, depth_compare: bool = False,
-                 linear: bool = False) -> None:
-        self.width, self.height, self.cube = width, height, cube
+                 linear: bool = False, layers: int = 0) -> None:
+        self.width, self.height, self.cube, self.layers = width, height, cube, layers
         self.fbo = GL.glGenFramebuffers(1)
         self.color_textures: list[int] = []
         self.depth_texture = 0
         self.depth_renderbuffer = 0
-        target = GL.GL_TEXTURE_CUBE_MAP if cube else GL.GL_TEXTURE_2D
+        if layers:
+            target = GL.GL_TEXTURE_2D_ARRAY
+        else:
+            target = GL.GL_TEXTURE_CUBE_MAP if cube else GL.GL_TEXTURE_2D
+        self.target = target
         faces = [GL.GL_TEXTURE_CUBE_MAP_POSITIVE_X + i for i in range(6)] if cube else [target]
+
+        def storage(internal: int, fmt: int, typ: int) -> None:
+            if layers:
+                GL.glTexImage3D(target, 0, internal, width, height, layers, 0, fmt, typ, None)
+                return
+            for f in faces:
+                GL.glTexImage2D(f, 0, internal, width, height, 0, fmt, typ, None)
+
         try:
             for internal, fmt, typ in colors:
                 tex = GL.glGenTextures(1)
                 self.color_textures.append(tex)
                 GL.glBindTexture(target, tex)
-                for f in faces:
-                    GL.glTexImage2D(f, 0, internal, width, height, 0, fmt, typ, None)
+                storage(internal, fmt, typ)
                 _sampling(target, linear=False)
             if depth is not None:
                 internal, as_texture = depth
                 if as_texture:
                     self.depth_texture = GL.glGenTextures(1)
                     GL.glBindTexture(target, self.depth_texture)
-                    for f in faces:
-                        GL.glTexImage2D(f, 0, internal, width, height, 0,
-                                        GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, None)
+                    storage(internal, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
                     _sampling(target, linear=linear)
                     if depth_compare:
                         GL.glTexParameteri(target, GL.GL_TEXTURE_COMPARE_MODE,
@@ -447,7 +586,9 @@ class Framebuffer:
             if self.depth_renderbuffer:
                 GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT,
                                              GL.GL_RENDERBUFFER, self.depth_renderbuffer)
-            if not cube:
+            if layers:
+                self.bind_layer(0)
+            elif not cube:
                 self._attach(GL.GL_TEXTURE_2D)
             else:
                 self.bind_face(0)
@@ -479,6 +620,17 @@ class Framebuffer:
     def bind_face(self, face: int) -> None:
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         self._attach(GL.GL_TEXTURE_CUBE_MAP_POSITIVE_X + face)
+        GL.glViewport(0, 0, self.width, self.height)
+
+    def bind_layer(self, layer: int) -> None:
+        """Render into (and read from) one layer of the array attachments."""
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
+        for i, tex in enumerate(self.color_textures):
+            GL.glFramebufferTextureLayer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + i, tex, 0,
+                                         layer)
+        if self.depth_texture:
+            GL.glFramebufferTextureLayer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT,
+                                         self.depth_texture, 0, layer)
         GL.glViewport(0, 0, self.width, self.height)
 
     def read_color(self, index: int, fmt: int, typ: int, channels: int,

@@ -2,8 +2,9 @@
 warnings for everything dropped or approximated.
 
 Order of work, cheapest first, so a scene refused by a check decodes nothing: the container and
-``asset``; ``extensionsRequired``; the node graph (JSON only); the triangle-count pre-check
-(accessor counts times instance counts); then the data each drawn mesh needs, each mesh decoded
+``asset``; the admission check from the JSON alone (:mod:`.admission`: URIs, node count,
+hierarchy depth, instances, primitives, declared triangles and decoded bytes against the limits);
+``extensionsRequired``; the node graph; then the data each drawn mesh needs, each mesh decoded
 once per distinct (skin, morph weights) use, and instances built per mesh in vectorised steps.
 """
 
@@ -15,16 +16,18 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import LimitError, SceneError, UnsupportedExtension
+from ..errors import SceneError, UnsupportedExtension
+from ..limits import Limits
 from ..scene import Instance, Material, Primitive, SceneCamera, SceneLight, _vertex_normals
 from . import morph, skin
 from .accessors import UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, check_type
+from .admission import admit
 from .extensions import check_extensions, gpu_instancing, lights_punctual, mesh_quantization
 from .extensions import texture_transform as tt
 from .materials import Materials, MaterialUse
 from .nodes import INVALID, NodeGraph, build_graph
-from .primitives import MODE_NAMES, RESTART, TRIANGLES, triangle_count, triangulate
-from .reader import Buffers, Document, Resolver, extension, get_index, get_list
+from .primitives import MODE_NAMES, RESTART, TRIANGLES, triangulate
+from .reader import Buffers, Document, Resolver, brief, extension, get_index, get_list
 
 DRACO = "KHR_draco_mesh_compression"
 INSTANCING = gpu_instancing.EXTENSION
@@ -45,6 +48,9 @@ class LoadedGltf:
         As in ``Scene``.
     warnings : list of str
         Everything dropped or approximated, each once, in the order met.
+    arrays : dict of str to ndarray
+        The instances as arrays (``primitive``, ``matrices``, ``bounds``, ``receive``, as in
+        :class:`~shadowmap.renderer.scene.InstanceArrays`), which the loader builds anyway.
     """
 
     primitives: list[Primitive]
@@ -52,10 +58,11 @@ class LoadedGltf:
     cameras: list[SceneCamera] = field(default_factory=list)
     lights: list[SceneLight] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def load_gltf(document: Document, resolver: Resolver,
-              max_triangles: int | None = None) -> LoadedGltf:
+              limits: Limits | None = None) -> LoadedGltf:
     """Decode a parsed glTF container into scene parts.
 
     Parameters
@@ -64,26 +71,22 @@ def load_gltf(document: Document, resolver: Resolver,
         From :func:`~shadowmap.renderer.gltf.reader.read_container`.
     resolver : Resolver
         External buffers and images by relative name.
-    max_triangles : int, optional
-        Refuse, before decoding any data, a scene whose accessors declare more triangles
-        (counting every instance).
+    limits : Limits, optional
+        Refuse, from the JSON alone and before anything else, a document over a limit
+        (:func:`~shadowmap.renderer.gltf.admission.admit`: nodes, depth, instances, primitives,
+        triangles, decoded bytes); hold decoded textures to ``max_texture_pixels``.
 
     Raises
     ------
     UnsupportedExtension
         A required extension is not implemented (or its decoder is not installed).
     LimitError
-        ``max_triangles``.
+        A limit of ``limits``.
     SceneError
         Malformed, inconsistent or unsafe content; nothing drawable.
     """
-    loader = _Loader(document, resolver)
-    if max_triangles is not None:
-        total = loader.declared_triangles()
-        if total > max_triangles:
-            raise LimitError("max_triangles", f"the scene has {total} triangles, over the "
-                             f"limit of {max_triangles}")
-    return loader.load()
+    admit(document.json, limits)
+    return _Loader(document, resolver, limits).load()
 
 
 def _orthonormal_pose(m: np.ndarray) -> np.ndarray:
@@ -117,7 +120,8 @@ class _Record:
 
 
 class _Loader:
-    def __init__(self, document: Document, resolver: Resolver) -> None:
+    def __init__(self, document: Document, resolver: Resolver,
+                 limits: Limits | None = None) -> None:
         self.doc = document.json
         self.warnings: list[str] = check_extensions(self.doc)
         required = self.doc.get("extensionsRequired", [])
@@ -128,48 +132,19 @@ class _Loader:
         self.skins = get_list(self.doc, "skins")
         self.buffers = Buffers(document, resolver)
         self.accessors = Accessors(self.buffers)
-        self.materials = Materials(self.buffers, resolver, self.warnings)
+        self.materials = Materials(self.buffers, resolver, self.warnings,
+                                   None if limits is None else limits.max_texture_pixels)
+        self._joint_matrices: dict[int, np.ndarray] = {}
         self.primitives: list[Primitive] = []
         self._uses: dict[_UseKey, list[int | None]] = {}
         self._left_out: list[str] = []
-
-    # -- the cheap pre-check ---------------------------------------------------------------
+        self.arrays: dict[str, np.ndarray] = {}
 
     def _mesh_spec(self, m: int) -> dict[str, Any]:
         spec = self.meshes[m]
         if not isinstance(spec, dict) or not isinstance(spec.get("primitives"), list):
             raise SceneError(f"malformed glTF: mesh {m} has no 'primitives' array")
         return spec
-
-    def _declared_mesh_triangles(self, m: int) -> int:
-        total = 0
-        for prim in self._mesh_spec(m)["primitives"]:
-            if not isinstance(prim, dict):
-                continue
-            mode = prim.get("mode", TRIANGLES)
-            attrs = prim.get("attributes", {})
-            idx = prim.get("indices")
-            acc = idx if idx is not None else (attrs.get("POSITION")
-                                               if isinstance(attrs, dict) else None)
-            if isinstance(acc, int) and not isinstance(acc, bool) and 0 <= acc < len(
-                    self.accessors) and isinstance(mode, int):
-                total += triangle_count(mode, self.accessors.count(acc))
-        return total
-
-    def declared_triangles(self) -> int:
-        """Triangles the drawn nodes declare (accessor counts x instances), no data read."""
-        g = self.graph
-        nodes = np.flatnonzero(g.in_scene & (g.mesh >= 0))
-        per_node = np.ones(len(nodes), np.int64)
-        for k in np.flatnonzero(g.special[nodes] & (g.skin[nodes] < 0)).tolist():
-            i = int(nodes[k])
-            ext = extension(g.nodes[i], INSTANCING)
-            if ext is not None:
-                count = gpu_instancing.instance_count(ext, self.accessors, f"node {i}")
-                per_node[k] = count if count else 1
-        uses = np.bincount(g.mesh[nodes], weights=per_node, minlength=len(self.meshes))
-        return sum(int(uses[m]) * self._declared_mesh_triangles(int(m))
-                   for m in np.flatnonzero(uses))
 
     # -- loading ---------------------------------------------------------------------------
 
@@ -181,7 +156,7 @@ class _Loader:
             raise SceneError(f"the scene has no triangles to render (left out: {detail}{more})")
         cameras, lights = self._cameras_and_lights()
         warnings = list(dict.fromkeys(self.warnings + self.buffers.warnings))
-        return LoadedGltf(self.primitives, instances, cameras, lights, warnings)
+        return LoadedGltf(self.primitives, instances, cameras, lights, warnings, self.arrays)
 
     def _instances(self) -> list[Instance]:
         g = self.graph
@@ -211,17 +186,39 @@ class _Loader:
             return []
         cast = np.where(g.cast >= 0, g.cast, mesh_cast[np.maximum(g.mesh, 0)]) != 0
         receive = np.where(g.receive >= 0, g.receive, mesh_receive[np.maximum(g.mesh, 0)]) != 0
-        out: list[tuple[int, int, int, Instance]] = []
-        for rec in records:
-            p = rec.primitive
-            bounds = _bounds(self.primitives[p].local_bounds.astype(np.float64), rec.matrices)
-            sub = rec.sub.tolist() if rec.sub is not None else [0] * len(rec.nodes)
-            for k, (i, j) in enumerate(zip(rec.nodes.tolist(), sub, strict=True)):
-                name = g.names[i] if rec.sub is None else f"{g.names[i]}#{j}"
-                out.append((i, j, p, Instance(p, rec.matrices[k], bool(cast[i]),
-                                              bool(receive[i]), name, bounds[k])))
-        out.sort(key=lambda r: (r[0], r[1], r[2]))  # file order: node, instance, primitive
-        return [r[3] for r in out]
+        # Every record's instances as parallel arrays, in file order (node, instance,
+        # primitive), then one Instance object each: the objects are built by map() over the
+        # arrays' rows, with nothing but their construction left in Python per instance.
+        node = np.concatenate([r.nodes for r in records])
+        sub = np.concatenate([r.sub if r.sub is not None else np.zeros(len(r.nodes), np.int64)
+                              for r in records])
+        prim = np.concatenate([np.full(len(r.nodes), r.primitive, np.intp) for r in records])
+        matrices = np.concatenate([r.matrices for r in records])
+        with np.errstate(over="ignore", invalid="ignore"):  # refused just below
+            bounds = np.concatenate([
+                _bounds(self.primitives[r.primitive].local_bounds.astype(np.float64),
+                        r.matrices) for r in records])
+        if not np.isfinite(bounds).all():
+            raise SceneError("the scene's transforms and positions overflow: an instance "
+                             "reaches past 1e308 units")
+        order = np.lexsort((prim, sub, node))
+        node, sub, prim = node[order], sub[order], prim[order]
+        matrices, bounds = matrices[order], bounds[order]
+        names = [g.names[i] for i in node.tolist()]
+        numbered = np.zeros(len(node), bool)
+        start = 0
+        for r in records:  # EXT_mesh_gpu_instancing instances are named "<node>#<instance>"
+            numbered[start:start + len(r.nodes)] = r.sub is not None
+            start += len(r.nodes)
+        numbered = numbered[order]
+        for k in np.flatnonzero(numbered).tolist():
+            names[k] = f"{names[k]}#{int(sub[k])}"
+        # Copies: the Instance objects' matrices and bounds are views of these arrays, and an
+        # instance changed in place must not change the scene's arrays under the plan's caches.
+        self.arrays = {"primitive": prim, "matrices": matrices.copy(), "bounds": bounds.copy(),
+                       "receive": receive[node]}
+        return list(map(Instance, prim.tolist(), matrices, cast[node].tolist(),
+                        receive[node].tolist(), names, bounds))
 
     def _check_finite(self, nodes: np.ndarray) -> None:
         bad = ~np.all(np.isfinite(self.graph.world[nodes]), axis=(1, 2))
@@ -278,7 +275,7 @@ class _Loader:
         name = spec.get("name") if isinstance(spec.get("name"), str) else ""
         out: list[int | None] = []
         for p, prim in enumerate(spec["primitives"]):
-            what = f"mesh {m} ({name!r}) primitive {p}" if name else f"mesh {m} primitive {p}"
+            what = f"mesh {m} ({brief(name)}) primitive {p}" if name else f"mesh {m} primitive {p}"
             built = self._primitive(m, p, prim, s, weights, node, what)
             if built is None:
                 out.append(None)
@@ -304,7 +301,7 @@ class _Loader:
                 self._drop(what, f"mode {mode} ({MODE_NAMES[mode]}) is left out: only "
                            "triangles are drawn")
             else:
-                self._drop(what, f"unknown mode {mode!r}: left out")
+                self._drop(what, f"unknown mode {brief(mode)}: left out")
             return None
         attrs = prim.get("attributes")
         if not isinstance(attrs, dict):
@@ -447,7 +444,11 @@ class _Loader:
     def _skin(self, s: int, node: int, attrs: dict[str, Any], decoded: dict[str, np.ndarray],
               positions: np.ndarray, normals: np.ndarray | None, n: int, take: Any,
               what: str) -> tuple[np.ndarray, np.ndarray | None]:
-        mats = skin.joint_matrices(self.doc, s, self.graph, self.accessors)
+        # Once per skin, not per primitive: a skin's list may hold thousands of joints.
+        mats = self._joint_matrices.get(s)
+        if mats is None:
+            mats = self._joint_matrices[s] = skin.joint_matrices(self.doc, s, self.graph,
+                                                                 self.accessors)
         joints: list[np.ndarray] = []
         weights: list[np.ndarray] = []
         k = 0
@@ -575,7 +576,7 @@ class _Loader:
             node = g.nodes[i]
             has_light = extension(node, lights_punctual.EXTENSION) is not None
             if g.camera[i] == INVALID:
-                self.warnings.append(f"node {g.names[i]!r}: camera {node.get('camera')!r} "
+                self.warnings.append(f"node {g.names[i]!r}: camera {brief(node.get('camera'))} "
                                      "does not exist: left out")
             if g.camera[i] < 0 and not has_light:
                 continue
@@ -612,10 +613,23 @@ class _Loader:
             return float(v)
 
         yfov = num("yfov")
-        if yfov is None or yfov <= 0:
-            self.warnings.append(f"camera {index} has no valid yfov: left out")
+        if yfov is None or not 0 < yfov < math.pi:
+            self.warnings.append(f"camera {index} has no valid yfov (radians, between 0 and "
+                                 f"pi): {brief(p.get('yfov'))}: left out")
             return None
-        return SceneCamera(pose, yfov, num("znear"), num("zfar"), num("aspectRatio"))
+        znear, zfar, aspect = num("znear"), num("zfar"), num("aspectRatio")
+        # Each is optional: one that cannot be used is fitted to the scene instead.
+        if znear is not None and znear <= 0:
+            self.warnings.append(f"camera {index}: znear {znear} is not positive: fitted to the "
+                                 "scene instead")
+            znear = None
+        if zfar is not None and (zfar <= 0 or (znear is not None and zfar <= znear)):
+            self.warnings.append(f"camera {index}: zfar {zfar} is not beyond znear: fitted to "
+                                 "the scene instead")
+            zfar = None
+        if aspect is not None and aspect <= 0:
+            aspect = None
+        return SceneCamera(pose, yfov, znear, zfar, aspect)
 
 
 def _bounds(local: np.ndarray, mats: np.ndarray) -> np.ndarray:

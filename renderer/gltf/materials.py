@@ -4,11 +4,13 @@ What the renderer draws from a glTF material is its base colour: ``pbrMetallicRo
 ``baseColorFactor`` and ``baseColorTexture`` (with its ``texCoord`` set and
 ``KHR_texture_transform``), or, for a material without ``pbrMetallicRoughness``, the diffuse
 colour of ``KHR_materials_pbrSpecularGlossiness``. Textures are decoded once per image with PIL
-(PNG, JPEG, WebP) under a pixel-count limit; a texture that cannot be used (undecodable, too
-large, an unsafe or missing URI) is dropped with a warning naming the image and the material,
-and the render then uses the base colour factor. Samplers are not read: textures are sampled
-with ``REPEAT`` wrapping (the loader warns when a primitive's UVs leave [0, 1] under another
-wrap mode).
+(PNG, JPEG, WebP) under a pixel-count limit per image and, with ``max_texture_pixels``, over all
+of them (a :class:`~shadowmap.renderer.errors.LimitError`); a texture that cannot be used
+(undecodable, too large, a missing file) is dropped with a warning naming the image and the
+material, and the render then uses the base colour factor. An image URI that could leave the
+upload is refused (:class:`~shadowmap.renderer.errors.SceneError`), as a buffer's is. Samplers
+are not read: textures are sampled with ``REPEAT`` wrapping (the loader warns when a primitive's
+UVs leave [0, 1] under another wrap mode).
 """
 
 from __future__ import annotations
@@ -16,15 +18,16 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..errors import SceneError
-from ..scene import Material
+from ..errors import LimitError, SceneError
+from ..scene import Material, safe_uri
 from .extensions import specular_glossiness, texture_transform
-from .reader import Buffers, Resolver, extension, get_list, load_uri
+from .reader import Buffers, Resolver, brief, extension, get_list, is_data_uri, load_uri
 
 #: Largest texture decoded (pixels): 64 Mpixel, like PIL's ``Image.MAX_IMAGE_PIXELS`` guard.
 MAX_TEXTURE_PIXELS = 64 * 2**20
@@ -66,10 +69,13 @@ class MaterialUse:
 
 def _label(kind: str, index: int, spec: Any) -> str:
     name = spec.get("name") if isinstance(spec, dict) else None
-    return f"{kind} {index} ({name!r})" if isinstance(name, str) and name else f"{kind} {index}"
+    if isinstance(name, str) and name:
+        return f"{kind} {index} ({brief(name)})"
+    return f"{kind} {index}"
 
 
-def decode_image(data: bytes, max_pixels: int | None = None) -> np.ndarray:
+def decode_image(data: bytes, max_pixels: int | None = None,
+                 on_size: Callable[[int, int], None] | None = None) -> np.ndarray:
     """Decode a PNG, JPEG or WebP image to RGBA.
 
     The size is checked from the header, before any pixel is decoded.
@@ -79,6 +85,9 @@ def decode_image(data: bytes, max_pixels: int | None = None) -> np.ndarray:
     data : bytes
     max_pixels : int, optional
         Default :data:`MAX_TEXTURE_PIXELS`.
+    on_size : callable, optional
+        Called with (width, height) once the header is read, before the pixels are decoded
+        (it may raise to stop the decode).
 
     Returns
     -------
@@ -101,6 +110,8 @@ def decode_image(data: bytes, max_pixels: int | None = None) -> np.ndarray:
             raise ValueError(f"{w}x{h} pixels is over the limit of {max_pixels}")
         if w * h == 0:
             raise ValueError("the image has no pixels")
+        if on_size is not None:
+            on_size(w, h)
         rgba = im.convert("RGBA")
     return np.asarray(rgba, dtype=np.uint8)
 
@@ -115,9 +126,12 @@ class Materials:
         External images by relative name.
     warnings : list of str
         Where messages about dropped or approximated parts are appended.
+    max_texture_pixels : int, optional
+        Most pixels decoded over all images (``Limits.max_texture_pixels``).
     """
 
-    def __init__(self, buffers: Buffers, resolver: Resolver, warnings: list[str]) -> None:
+    def __init__(self, buffers: Buffers, resolver: Resolver, warnings: list[str],
+                 max_texture_pixels: int | None = None) -> None:
         self.doc = buffers.doc
         self.buffers = buffers
         self.resolver = resolver
@@ -128,6 +142,10 @@ class Materials:
         self.samplers = get_list(self.doc, "samplers")
         self._uses: dict[int | None, MaterialUse] = {}
         self._images: dict[int, np.ndarray | str] = {}
+        self.max_texture_pixels = max_texture_pixels
+        #: Pixels of the images decoded so far (counted from their headers, before decoding:
+        #: an image that fails part way has cost its memory all the same).
+        self.pixels = 0
 
     def get(self, index: int | None) -> MaterialUse:
         """The material ``index`` (None: glTF's default material)."""
@@ -156,7 +174,7 @@ class Materials:
         factor = self._factor(factor_json, label)
         alpha_mode = spec.get("alphaMode", "OPAQUE")
         if not isinstance(alpha_mode, str) or alpha_mode not in ALPHA_MODES:
-            self.warnings.append(f"{label}: unknown alphaMode {alpha_mode!r}, drawn OPAQUE")
+            self.warnings.append(f"{label}: unknown alphaMode {brief(alpha_mode)}, drawn OPAQUE")
             alpha_mode = "OPAQUE"
         cutoff = self._cutoff(spec, label, alpha_mode)
         double_sided = spec.get("doubleSided", False) is True
@@ -173,7 +191,7 @@ class Materials:
                 and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
                 and all(math.isfinite(v) for v in value)):
             return np.asarray(value, np.float32)
-        self.warnings.append(f"{label}: base colour factor {value!r} is not 4 finite numbers; "
+        self.warnings.append(f"{label}: base colour factor {brief(value)} is not 4 finite numbers; "
                              "white is used")
         return np.ones(4, np.float32)
 
@@ -183,7 +201,7 @@ class Materials:
         value = spec["alphaCutoff"]
         if (isinstance(value, bool) or not isinstance(value, int | float)
                 or not math.isfinite(value) or value < 0):
-            self.warnings.append(f"{label}: alphaCutoff {value!r} is not a number >= 0; 0.5 "
+            self.warnings.append(f"{label}: alphaCutoff {brief(value)} is not a number >= 0; 0.5 "
                                  "is used")
             return 0.5
         cutoff = float(value)
@@ -203,7 +221,7 @@ class Materials:
             return None, 0, None, None
         tex_coord = info.get("texCoord", 0)
         if isinstance(tex_coord, bool) or not isinstance(tex_coord, int) or tex_coord < 0:
-            self.warnings.append(f"{label}: texCoord {tex_coord!r} is invalid; 0 is used")
+            self.warnings.append(f"{label}: texCoord {brief(tex_coord)} is invalid; 0 is used")
             tex_coord = 0
         transform = None
         tt = extension(info, texture_transform.EXTENSION)
@@ -212,8 +230,8 @@ class Materials:
             tex_coord = texture_transform.tex_coord(tt, tex_coord, label)
         tex = info.get("index")
         if isinstance(tex, bool) or not isinstance(tex, int) or not 0 <= tex < len(self.textures):
-            self.warnings.append(f"{label}: base colour texture {tex!r} does not exist: dropped, "
-                                 "the base colour factor is used")
+            self.warnings.append(f"{label}: base colour texture {brief(tex)} does not exist: "
+                                 "dropped, the base colour factor is used")
             return None, tex_coord, transform, None
         tspec = self.textures[tex]
         tspec = tspec if isinstance(tspec, dict) else {}
@@ -248,6 +266,10 @@ class Materials:
         if index in self._images:
             return self._images[index]
         spec = self.images[index]
+        label = _label("image", index, spec)
+        uri = spec.get("uri") if isinstance(spec, dict) and "bufferView" not in spec else None
+        if isinstance(uri, str) and not is_data_uri(uri):
+            safe_uri(uri, label)  # an unsafe URI is refused, as a buffer's: not a missing file
         result: np.ndarray | str
         try:
             if not isinstance(spec, dict):
@@ -255,7 +277,7 @@ class Materials:
             if "bufferView" in spec:
                 bv = spec["bufferView"]
                 if isinstance(bv, bool) or not isinstance(bv, int):
-                    raise SceneError(f"bufferView {bv!r} is not an index")
+                    raise SceneError(f"bufferView {brief(bv)} is not an index")
                 data = self.buffers.view(bv)
             elif "uri" in spec:
                 data = load_uri(spec["uri"], self.resolver, "the image")
@@ -265,8 +287,20 @@ class Materials:
             result = f"cannot be read ({exc})"
         else:
             try:
-                result = decode_image(data)
+                result = decode_image(data, on_size=lambda w, h: self._count(w, h, label))
+            except LimitError:
+                raise
             except Exception as exc:  # noqa: BLE001 - PIL raises many types on bad input
                 result = f"cannot be decoded ({type(exc).__name__}: {exc})"
         self._images[index] = result
         return result
+
+    def _count(self, width: int, height: int, label: str) -> None:
+        """Count an image about to be decoded; refuse it when it would take the decoded pixels
+        over ``max_texture_pixels``."""
+        total = self.pixels + width * height
+        self.pixels = total
+        if self.max_texture_pixels is not None and total > self.max_texture_pixels:
+            raise LimitError("max_texture_pixels", f"{label} ({width}x{height}) takes the "
+                             f"scene's textures to {total:,} pixels, over the limit of "
+                             f"{self.max_texture_pixels:,} (max_texture_pixels)")

@@ -13,10 +13,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError
-from .reader import get_index, get_list
+from .reader import brief, get_index, get_list
 
 #: ``NodeGraph.camera`` of a node whose camera index is out of range.
 INVALID = -2
+#: Longest node name kept (longer ones are cut).
+MAX_NAME = 120
 
 
 def trs_matrices(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -165,7 +167,7 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
         if not all(ok):
             bad = ok.index(False)
             if key != "camera":
-                raise SceneError(f"node {rows[bad]}: '{key}' = {values[bad]!r} is not a valid "
+                raise SceneError(f"node {rows[bad]}: '{key}' = {brief(values[bad])} is not a valid "
                                  f"index (0..{lengths[key] - 1})")
         good = [v if k else INVALID for v, k in zip(values, ok, strict=True)]
         # A bad camera reference costs the camera (INVALID), not the scene.
@@ -174,7 +176,9 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     names = [f"node_{i}" for i in range(n)]
     for i, name in zip(*field("name"), strict=True):
         if isinstance(name, str) and name:
-            names[i] = name
+            # Cut: names go into every message about their node, and a file must not turn
+            # one long name into megabytes of warnings.
+            names[i] = name if len(name) <= MAX_NAME else name[:MAX_NAME - 3] + "..."
     cast = np.full(n, -1, np.int8)
     receive = np.full(n, -1, np.int8)
     for i, extras in zip(*field("extras"), strict=True):
@@ -193,13 +197,14 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
             raise SceneError(f"node {i}: 'children' is not an array")
         for c in kids:
             if not _is_int(c) or not 0 <= c < n:
-                raise SceneError(f"node {i}: child {c!r} is not a valid node index")
+                raise SceneError(f"node {i}: child {brief(c)} is not a valid node index")
             if parent[c] != -1:
                 raise SceneError(f"node {c} has two parents (nodes {parent[c]} and {i}): the "
                                  "node graph must be a forest")
             parent[c] = i
         children[i] = kids
-    local = trs_matrices(t, r, s)
+    with np.errstate(over="ignore", invalid="ignore"):  # huge TRS: refused where drawn
+        local = trs_matrices(t, r, s)
     # glTF matrices are column-major: the 16 numbers are the columns. A matrix wins over TRS.
     local[m_rows] = matrix.reshape(-1, 4, 4).transpose(0, 2, 1)
 
@@ -216,7 +221,8 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
             raise SceneError(f"scene {scene_index}: 'nodes' is not an array")
         for x in roots:
             if isinstance(x, bool) or not isinstance(x, int) or not 0 <= x < n:
-                raise SceneError(f"scene {scene_index}: node {x!r} is not a valid node index")
+                raise SceneError(f"scene {scene_index}: node {brief(x)} is not a valid node "
+                                 "index")
             listed[x] = True
     else:
         listed[parent == -1] = True

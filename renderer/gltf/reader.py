@@ -14,14 +14,17 @@ from __future__ import annotations
 
 import base64
 import binascii
+import gc
 import json
 import re
+import reprlib
 import struct
 from dataclasses import dataclass
 from typing import Any, Protocol
 from urllib.parse import unquote_to_bytes
 
 from ..errors import SceneError, UnsupportedExtension, UnsupportedVersion
+from ..scene import safe_uri
 
 GLB_MAGIC = b"glTF"
 JSON_CHUNK = 0x4E4F534A
@@ -140,16 +143,58 @@ def parse_json(raw: bytes) -> dict[str, Any]:
     SceneError
         Not UTF-8, not JSON, nested too deep for the parser, or not a JSON object.
     """
+    # The cyclic garbage collector is paused while parsing: JSON builds no cycles, and its
+    # generation-0 passes over every new list and dict cost a third of the parse of a file of
+    # many small objects (100,000 nodes).
+    collecting = gc.isenabled()
+    gc.disable()
     try:
-        doc = json.loads(raw.decode("utf-8-sig"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = json.loads(raw.decode("utf-8-sig"), parse_constant=_no_constant)
+    except (UnicodeDecodeError, ValueError) as exc:
+        # ValueError: JSONDecodeError, and integers longer than Python converts (4,300 digits).
         raise SceneError(f"the glTF JSON cannot be parsed: {exc}") from None
     except RecursionError:
         # e.g. a million nested '[': the C parser gives up with RecursionError.
         raise SceneError("the glTF JSON cannot be parsed: it nests too deep") from None
+    finally:
+        if collecting:
+            gc.enable()
     if not isinstance(doc, dict):
         raise SceneError("not a glTF 2.0 file: the JSON is not an object")
+    if _SURROGATE_ESCAPE.search(raw):
+        _check_strings(doc)
     return doc
+
+
+def _no_constant(name: str) -> Any:
+    # Python's json reads NaN and Infinity, which JSON (and so glTF) does not have.
+    raise SceneError(f"the glTF JSON cannot be parsed: {name} is not a JSON value")
+
+
+#: A \uD800-\uDFFF escape: the only way a JSON text can spell a lone UTF-16 surrogate, which
+#: no UTF-8 text (a warning, a JSON response) can carry.
+_SURROGATE_ESCAPE = re.compile(rb"\\u[dD][89a-fA-F][0-9a-fA-F]{2}")
+
+
+def _check_strings(doc: dict[str, Any]) -> None:
+    """Refuse a document holding a string or key that is not valid Unicode (a lone surrogate).
+
+    Iterative, so that a document nested as deep as the parser allows costs no recursion.
+    """
+    stack: list[Any] = [doc]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, str):
+            try:
+                item.encode("utf-8")
+            except UnicodeEncodeError:
+                raise SceneError("the glTF JSON cannot be parsed: a string holds a lone UTF-16 "
+                                 f"surrogate ({item[:40]!r})") from None
 
 
 def check_asset(doc: dict[str, Any]) -> None:
@@ -169,7 +214,7 @@ def check_asset(doc: dict[str, Any]) -> None:
     version = asset.get("version")
     match = _VERSION.match(version) if isinstance(version, str) else None
     if match is None:
-        raise SceneError(f"asset.version {version!r} is not a version like '2.0'")
+        raise SceneError(f"asset.version {brief(version)} is not a version like '2.0'")
     if int(match.group(1)) != 2:
         raise UnsupportedVersion("asset.version", f"asset.version: glTF version {version!r} is "
                                  "not supported (only 2.x)")
@@ -177,7 +222,8 @@ def check_asset(doc: dict[str, Any]) -> None:
         min_version = asset["minVersion"]
         m = _VERSION.match(min_version) if isinstance(min_version, str) else None
         if m is None:
-            raise SceneError(f"asset.minVersion {min_version!r} is not a version like '2.0'")
+            raise SceneError(f"asset.minVersion {brief(min_version)} is not a version like "
+                             "'2.0'")
         if (int(m.group(1)), int(m.group(2))) > SUPPORTED_VERSION:
             raise UnsupportedVersion("asset.minVersion", f"asset.minVersion {min_version!r}: the "
                                      "file needs a newer glTF loader than this one (2.0)")
@@ -203,12 +249,40 @@ def decode_data_uri(uri: str, what: str) -> bytes:
 
 
 def load_uri(uri: Any, resolver: Resolver, what: str) -> bytes:
-    """Bytes named by a glTF ``uri``: a ``data:`` URI, else a name looked up in ``resolver``."""
+    """Bytes named by a glTF ``uri``: a ``data:`` URI, else a name looked up in ``resolver``.
+
+    Raises
+    ------
+    SceneError
+        Not a string; a name that could leave the upload
+        (:func:`~shadowmap.renderer.scene.safe_uri`, checked here whatever the resolver does);
+        a malformed ``data:`` URI; whatever the resolver raises.
+    """
     if not isinstance(uri, str):
         raise SceneError(f"{what}: 'uri' is not a string")
-    if uri[:5].lower() == "data:":
+    if is_data_uri(uri):
         return decode_data_uri(uri, what)
-    return resolver.get(uri)
+    return resolver.get(safe_uri(uri, what))
+
+
+def is_data_uri(uri: str) -> bool:
+    """Whether ``uri`` is a ``data:`` URI (decoded in place, never looked up)."""
+    return uri[:5].lower() == "data:"
+
+
+#: How :func:`brief` shows values: a few levels and items of each, so that neither a wide nor
+#: a deeply nested value costs more than a few hundred characters (or any recursion) to show.
+_BRIEF = reprlib.Repr()  # (keyword arguments only from Python 3.12)
+_BRIEF.maxlevel = 3
+_BRIEF.maxtuple = _BRIEF.maxlist = _BRIEF.maxdict = _BRIEF.maxset = 4
+_BRIEF.maxstring = _BRIEF.maxlong = _BRIEF.maxother = 40
+
+
+def brief(value: Any, limit: int = 60) -> str:
+    """A short ``repr`` of a value from a file, for messages: a warning or an error must not
+    carry a megabyte of the file."""
+    text = _BRIEF.repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def get_list(doc: dict[str, Any], key: str) -> list[Any]:
@@ -228,7 +302,8 @@ def get_index(obj: dict[str, Any], key: str, length: int, what: str,
         return None
     value = obj[key]
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < length:
-        raise SceneError(f"{what}: '{key}' = {value!r} is not a valid index (0..{length - 1})")
+        raise SceneError(f"{what}: '{key}' = {brief(value)} is not a valid index "
+                         f"(0..{length - 1})")
     return value
 
 
@@ -241,7 +316,7 @@ def get_int(obj: dict[str, Any], key: str, what: str, default: int | None = None
         return default
     value = obj[key]
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise SceneError(f"{what}: '{key}' = {value!r} is not an integer >= {minimum}")
+        raise SceneError(f"{what}: '{key}' = {brief(value)} is not an integer >= {minimum}")
     return value
 
 
@@ -373,11 +448,11 @@ class Buffers:
         stride = get_int(ext, "byteStride", what, minimum=1)
         mode = ext.get("mode")
         if not isinstance(mode, str) or mode not in ("ATTRIBUTES", "TRIANGLES", "INDICES"):
-            raise SceneError(f"{what}: unknown mode {mode!r}")
+            raise SceneError(f"{what}: unknown mode {brief(mode)}")
         filt = ext.get("filter", "NONE")
         if not isinstance(filt, str) or filt not in ("NONE", "OCTAHEDRAL", "QUATERNION",
                                                      "EXPONENTIAL"):
-            raise SceneError(f"{what}: unknown filter {filt!r}")
+            raise SceneError(f"{what}: unknown filter {brief(filt)}")
         src = self.buffer(src_buf)
         if src is None:
             raise SceneError(f"{what}: its compressed data is in buffer {src_buf}, which holds "

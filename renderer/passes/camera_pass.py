@@ -18,6 +18,7 @@ from ..camera import Camera
 from ..errors import RenderError
 from ..gl.programs import Program, ProgramCache
 from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene
+from ..limits import MAX_CASCADES
 from ..params import RenderParams
 from ..plan import RenderPlan
 from ..scene import Material, instance_arrays
@@ -157,12 +158,12 @@ class CameraPass:
             if frame.has_uv(gp):
                 GL.glActiveTexture(GL.GL_TEXTURE0)
                 if gp.texture is not None:
-                    gp.texture._bind()
+                    gp.texture.bind()
                 else:
                     GL.glBindTexture(GL.GL_TEXTURE_2D, self._white_texture())
                     GL.glVertexAttrib2f(SPARE_UV, 0.0, 0.0)
                 prog.set("u_base_texture", 0)
-            if frame.generic and gp.mesh.color_0 is None:
+            if frame.generic and not gp.has_color:
                 GL.glVertexAttrib4f(SPARE_COLOR, 1.0, 1.0, 1.0, 1.0)
             if frame.alpha_mask(mat):
                 prog.set("u_alpha_cutoff", mat.alpha_cutoff if mat.alpha_mode == "MASK" else -1.0)
@@ -210,6 +211,13 @@ class CameraPass:
             self._white = 0
 
 
+def _family(m: ShadowMap) -> str:
+    """Which of the camera pass's map families samples ``m``: "2d", "cube" or "csm"."""
+    if m.plan.cascades:
+        return "csm"
+    return "cube" if m.plan.kind == "cube" else "2d"
+
+
 class _FrameState:
     """Defines and uniforms shared by every draw of one frame."""
 
@@ -220,8 +228,9 @@ class _FrameState:
         self.generic = generic
         self.ready: set[int] = set()  # programs whose frame uniforms are set
         lights = [lp.light for lp in plan.lights]
-        self.n_2d = sum(1 for m in maps if m.plan.kind != "cube")
-        self.n_cube = sum(1 for m in maps if m.plan.kind == "cube")
+        self.n_2d = sum(1 for m in maps if _family(m) == "2d")
+        self.n_cube = sum(1 for m in maps if _family(m) == "cube")
+        self.n_csm = sum(1 for m in maps if _family(m) == "csm")
         # The light types are constants of the variant, so code for absent types is compiled
         # out whatever these say: they only decide which uniforms exist.
         self.has_spot = any(lt.type == "spot" for lt in lights)
@@ -232,13 +241,16 @@ class _FrameState:
         self.pcf_radius = shadows.pcf_kernel // 2 if shadows.filter == "pcf" else 0
         # Each light's slot among the 2D maps and among the cube maps, in the order of `maps`;
         # -1 where it has no map of that kind.
-        slot_2d: dict[int, int] = {}
-        slot_cube: dict[int, int] = {}
+        # Each light's slot among the maps of its family (2D, cube, cascaded), in the order of
+        # `maps`; -1 where it has none of that family.
+        slots: dict[str, dict[int, int]] = {"2d": {}, "cube": {}, "csm": {}}
         for m in maps:
-            slots = slot_cube if m.plan.kind == "cube" else slot_2d
-            slots[m.plan.index] = len(slots)
-        self.map_2d = [slot_2d.get(lp.index, -1) for lp in plan.lights]
-        self.map_cube = [slot_cube.get(lp.index, -1) for lp in plan.lights]
+            family = slots[_family(m)]
+            family[m.plan.index] = len(family)
+        self.map_2d = [slots["2d"].get(lp.index, -1) for lp in plan.lights]
+        self.map_cube = [slots["cube"].get(lp.index, -1) for lp in plan.lights]
+        self.map_csm = [slots["csm"].get(lp.index, -1) for lp in plan.lights]
+        self.cascades = [len(lp.cascades) for lp in plan.lights]
 
     def has_uv(self, gp: GpuPrimitive) -> bool:
         return self.generic or gp.texture is not None
@@ -248,11 +260,13 @@ class _FrameState:
 
     def defines(self, gp: GpuPrimitive, mat: Material) -> dict[str, int | bool | str]:
         shadows = self.params.shadows
-        has_color = gp.mesh.color_0 is not None
+        has_color = gp.has_color
         d: dict[str, int | bool | str] = {
             "NUM_LIGHTS": len(self.plan.lights),
             "NUM_MAPS_2D": self.n_2d,
             "NUM_MAPS_CUBE": self.n_cube,
+            "NUM_MAPS_CSM": self.n_csm,
+            "CASCADE_TINT": bool(self.n_csm) and shadows.debug_cascades,
             "HAS_SPOT": self.has_spot,
             "HAS_POSITIONAL": self.has_positional,
             "HAS_UV": self.has_uv(gp),
@@ -270,6 +284,9 @@ class _FrameState:
             d["LIGHT_TYPES"] = ", ".join(str(LIGHT_TYPES[lp.light.type]) for lp in self.plan.lights)
             d["LIGHT_MAPS_2D"] = ", ".join(str(m) for m in self.map_2d)
             d["LIGHT_MAPS_CUBE"] = ", ".join(str(m) for m in self.map_cube)
+            if self.n_csm:
+                d["LIGHT_MAPS_CSM"] = ", ".join(str(m) for m in self.map_csm)
+                d["LIGHT_CASCADES"] = ", ".join(str(c) for c in self.cascades)
         if d["HAS_UV"]:
             d["LOC_UV"] = gp.loc_uv if gp.texture is not None else SPARE_UV
         if d["HAS_COLOR"]:
@@ -301,8 +318,11 @@ class _FrameState:
         b = p.shadows.bias
         prog.set("u_bias", (b.constant, b.slope, b.slope_max, b.normal_offset))
         prog.set("u_bias_steps", b.quantisation_steps)
-        two_d = [m for m in self.maps if m.plan.kind != "cube"]
-        cubes = [m for m in self.maps if m.plan.kind == "cube"]
+        two_d = [m for m in self.maps if _family(m) == "2d"]
+        cubes = [m for m in self.maps if _family(m) == "cube"]
+        cascaded = [m for m in self.maps if _family(m) == "csm"]
+        if cascaded:
+            self._set_cascade_uniforms(prog, units, cascaded)
         if two_d:
             prog.set("u_map2d", [units[self.maps.index(m)] for m in two_d])
             prog.set("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d])
@@ -315,3 +335,32 @@ class _FrameState:
             prog.set("u_mapcube", [units[self.maps.index(m)] for m in cubes])
             prog.set("u_mapcube_position", [m.plan.position for m in cubes])
             prog.set("u_mapcube_range", [(m.plan.near, m.plan.far, m.plan.map_size) for m in cubes])
+
+    def _set_cascade_uniforms(self, prog: Program, units: list[int],
+                              cascaded: list[ShadowMap]) -> None:
+        """Per cascaded light, its array texture and size; per cascade (``slot * MAX_CASCADES
+        + k``, unused entries left as they are), its matrices, depth range, texel and split."""
+        prog.set("u_mapcsm", [units[self.maps.index(m)] for m in cascaded])
+        if self.pcf:  # only the PCF loop reads the size (its tap offsets)
+            prog.set("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded])
+        prog.set("u_camera_forward", -self.plan.camera.pose[:3, 2])
+        n = len(cascaded) * MAX_CASCADES
+        matrix = np.tile(np.eye(4), (n, 1, 1))
+        view = np.tile(np.eye(4), (n, 1, 1))
+        rng = np.tile([0.0, 1.0], (n, 1))
+        texel = np.ones(n)
+        split = np.zeros((n, 2))
+        for s, m in enumerate(cascaded):
+            for k, c in enumerate(m.plan.cascades):
+                j = s * MAX_CASCADES + k
+                matrix[j] = BIAS @ c.proj @ c.view
+                view[j] = c.view
+                rng[j] = (c.near, c.far)
+                texel[j] = c.texel[0]
+                split[j] = (min(c.split[1], 3e38), c.blend)
+        prog.set("u_csm_matrix", list(matrix))
+        if self.pcf_radius > 0:
+            prog.set("u_csm_view", list(view))
+        prog.set("u_csm_range", list(rng))
+        prog.set("u_csm_texel", list(texel))
+        prog.set("u_csm_split", list(split))

@@ -35,32 +35,40 @@ class ShadowMap:
 
     @property
     def target(self) -> int:
-        return GL.GL_TEXTURE_CUBE_MAP if self.plan.kind == "cube" else GL.GL_TEXTURE_2D
+        return self.fbo.target
 
     def read_depth(self) -> np.ndarray:
         """Decoded linear depth, NaN where nothing was drawn.
 
         Returns
         -------
-        ndarray, shape (S, S) or (6, S, S), float32
+        ndarray, shape (S, S), (6, S, S) or (K, S, S) for K cascades, float32
             Row 0 is the top of the light's view (+Y of the light).
         """
-        faces = range(6) if self.plan.kind == "cube" else [None]
         out: list[np.ndarray] = []
+        if self.plan.cascades:
+            for k in range(len(self.plan.cascades)):
+                self.fbo.bind_layer(k)
+                out.append(self._read())
+            return np.stack(out)
+        faces = range(6) if self.plan.kind == "cube" else [None]
         for face in faces:
             if face is not None:
                 if face not in self.plan.faces:
                     out.append(np.full((self.fbo.height, self.fbo.width), np.nan, np.float32))
                     continue
                 self.fbo.bind_face(face)
-            if self.encoding == "depth":
-                t = self.fbo.read_depth().astype(np.float64)
-            else:
-                rgba = self.fbo.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
-                t = encodings.decode(rgba, self.encoding)
-            t = np.where(t >= 1.0 - 1e-6, np.nan, t).astype(np.float32)
-            out.append(t)
+            out.append(self._read())
         return out[0] if face is None else np.stack(out)
+
+    def _read(self) -> np.ndarray:
+        """The bound face or layer, decoded."""
+        if self.encoding == "depth":
+            t = self.fbo.read_depth().astype(np.float64)
+        else:
+            rgba = self.fbo.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
+            t = encodings.decode(rgba, self.encoding)
+        return np.where(t >= 1.0 - 1e-6, np.nan, t).astype(np.float32)
 
 
 class LightPass:
@@ -73,14 +81,18 @@ class LightPass:
         self.variants: set[tuple] = set()  # defines of the programs drawn with, per frame
 
     def _framebuffer(self, key: tuple, taken: set[int]) -> Framebuffer:
-        kind, size, encoding, linear = key
+        kind, size, encoding, linear, layers = key
         for fb in self.pool.get(key, []):
             if id(fb) not in taken:
                 return fb
         cube = kind == "cube"
         if encoding == "depth":
             fb = Framebuffer(size, size, [], (GL.GL_DEPTH_COMPONENT32F, True), cube=cube,
-                             depth_compare=True, linear=linear)
+                             depth_compare=True, linear=linear, layers=layers)
+        elif layers:
+            # Each layer needs its own depth test: a layered depth texture, not a renderbuffer.
+            fb = Framebuffer(size, size, [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)],
+                             (GL.GL_DEPTH_COMPONENT32F, True), layers=layers)
         else:
             fb = Framebuffer(size, size, [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)],
                              (GL.GL_DEPTH_COMPONENT32F, False), cube=cube)
@@ -121,21 +133,33 @@ class LightPass:
         for lp in plans:
             if lp.kind is None:
                 continue
-            fb = self._framebuffer((lp.kind, lp.map_size, shadows.encoding, linear), taken)
+            layers = len(lp.cascades)
+            size = lp.cascades[0].map_size if layers else lp.map_size
+            fb = self._framebuffer((lp.kind, size, shadows.encoding, linear, layers), taken)
             taken.add(id(fb))
+            # (target, plan, view): every cube face, every cascade's layer, or the one map.
+            targets: list[tuple[tuple[str, int] | None, LightShadow, np.ndarray]]
+            if layers:
+                targets = [(("layer", k), c, c.view) for k, c in enumerate(lp.cascades)]
+            elif lp.kind == "cube":
+                targets = [(("face", f), lp, lp.face_views[f]) for f in lp.faces]
+            else:
+                targets = [(None, lp, lp.view)]
             groups = gpu.groups(lp.casters)  # once per light, for every face
-            views: list[tuple[int | None, np.ndarray]] = [(None, lp.view)]
-            if lp.kind == "cube":
-                views = [(f, lp.face_views[f]) for f in lp.faces]
-            for face, view in views:
-                if face is None:
+            for where, part, view in targets:
+                if where is None:
                     fb.bind()
+                elif where[0] == "face":
+                    fb.bind_face(where[1])
                 else:
-                    fb.bind_face(face)
+                    fb.bind_layer(where[1])
                 GL.glClearColor(1.0, 1.0, 1.0, 1.0)
                 GL.glClearDepth(1.0)
                 GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
-                self._draw_casters(gpu, groups, lp, view, shadows)
+                if part is not lp:  # a cascade draws its own casters
+                    self._draw_casters(gpu, gpu.groups(part.casters), part, view, shadows)
+                else:
+                    self._draw_casters(gpu, groups, part, view, shadows)
             maps.append(ShadowMap(lp, fb, shadows.encoding))
         self._trim(taken)
         return maps
@@ -174,7 +198,7 @@ class LightPass:
                 prog.set("u_polygon_offset", (po_factor, po_units))
             if texture is not None and cutoff is not None:
                 GL.glActiveTexture(GL.GL_TEXTURE0)
-                texture._bind()
+                texture.bind()
                 prog.set("u_base_texture", 0)
                 prog.set("u_base_alpha", float(mat.base_color[3]))
                 prog.set("u_alpha_cutoff", cutoff)

@@ -121,6 +121,10 @@ class PlanContext:
         Largest map side allowed.
     margin_texels : int
         Texels a map reaches beyond the receivers: PCF taps and the normal offset read there.
+    texel_distance : float or None
+        The camera distance at which automatic map sizes give their texel size; None: the
+        nearest receiver box's centre (:meth:`receiver_distance`). A cascade's context sets its
+        slice's near distance.
     """
 
     camera: Camera
@@ -140,6 +144,7 @@ class PlanContext:
     pixel_per_distance: float
     max_size: int
     margin_texels: int
+    texel_distance: float | None = None
 
     @classmethod
     def build(cls, scene: Scene, camera: Camera, origin: np.ndarray,
@@ -212,5 +217,7 @@ class PlanContext:
 
     def receiver_distance(self, receivers: np.ndarray) -> float:
         """A representative camera distance of the receivers: the nearest box centre."""
+        if self.texel_distance is not None:
+            return self.texel_distance
         d = np.linalg.norm(self.centres[receivers] - self.cam_pos, axis=1)
         return float(max(np.min(d), self.camera.znear))

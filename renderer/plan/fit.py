@@ -21,15 +21,18 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 
+from .context import AUTO_TEXEL_PIXELS
 from .geometry import (
     CUBE_FACE_PLANES,
     CUBE_FACES,
     boxes_in_frustum,
+    clip_boxes,
     corner_max,
     corner_min,
     cube_face_views,
     face_meets_cone,
     frustum,
+    frustum_planes,
     ortho,
     perspective,
     pose_from_direction,
@@ -106,6 +109,7 @@ class Fit:
     texel: tuple[float, float]
     faces: list[int] = field(default_factory=list)
     face_views: list[np.ndarray] = field(default_factory=list)
+    needed: float = 0.0  # texels per side 'auto' would want, before max_map_size
 
 
 R = TypeVar("R", bound=Reach)
@@ -178,7 +182,7 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
     x1, y1 = np.minimum([x1, y1], reach.hi[fit, :2].max(axis=0))
     if x1 <= x0 or y1 <= y0:
         return Skip("no_caster_in_frustum")
-    near, far = float(reach.depth_min[fit].min()), reach.far
+    near, far = _caster_near(ctx, reach, fit, (x0, x1, y0, y1)), reach.far
     extent = max(x1 - x0, y1 - y0, 1e-300)
     size = ctx.map_size_for(extent, s.receivers)
     pad = ctx.margin(extent, size)
@@ -191,6 +195,36 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
     near, far = near - span * 1e-3, far + span * 1e-3
     return Fit(kind="ortho", view=reach.view, proj=ortho(x0, x1, y0, y1, near, far), near=near,
                far=far, map_size=size, texel=(max(x1 - x0, y1 - y0) / size, 0.0))
+
+
+def _caster_near(ctx: PlanContext, reach: DirectionalReach, fit: np.ndarray,
+                 window: tuple[float, float, float, float]) -> float:
+    """The nearest light depth of the casters' parts over the window (x0, x1, y0, y1).
+
+    A caster wider than the window (a ground and a box in one mesh, a terrain) matters only
+    over the window, and its box's nearest corner elsewhere can lie far nearer the light: its
+    box is clipped to the window's column first, so the stored depth range (and with it the
+    precision of the 8-bit encodings) follows what is drawn into the map.
+    """
+    x0, x1, y0, y1 = window
+    idx = np.flatnonzero(fit)
+    lo, hi = reach.lo[idx], reach.hi[idx]
+    wide = (lo[:, 0] < x0) | (hi[:, 0] > x1) | (lo[:, 1] < y0) | (hi[:, 1] > y1)
+    near = float(reach.depth_min[idx[~wide]].min(initial=np.inf))
+    if wide.any():
+        z0 = float(reach.depth_min[idx].min())
+        z1 = max(reach.far, z0) + 1.0 + abs(reach.far)  # the column's depth: past everything
+        z0 -= 1.0 + abs(z0)
+        column = np.array([[x, y, -z] for z in (z0, z1) for x in (x0, x1) for y in (y0, y1)])
+        world = np.linalg.inv(reach.view)
+        hull = column @ world[:3, :3].T + world[:3, 3]
+        planes = frustum_planes(ortho(x0, x1, y0, y1, z0, z1) @ reach.view)
+        scale = float(np.max(np.abs(hull)))
+        pts = clip_boxes(ctx.bounds[idx[wide]], planes, hull, 1e-9 * scale)
+        if len(pts):
+            depth = -(pts @ reach.view[2, :3] + reach.view[2, 3])
+            near = min(near, float(depth.min()))
+    return near if np.isfinite(near) else float(reach.depth_min[fit].min())
 
 
 # --------------------------------------------------------------------------------------------
@@ -263,8 +297,18 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     pad = ctx.margin(extent, size)
     a_lo, a_hi = a_lo - pad, a_hi + pad
     proj = frustum(a_lo[0] * near, a_hi[0] * near, a_lo[1] * near, a_hi[1] * near, near, far)
+    # What the most demanding seen receiver point wants: one texel spans extent / size * its
+    # light depth and a pixel pixel_per_distance * its camera distance, and receivers over
+    # orders of magnitude in distance want far more than the typical one the size is for.
+    pts = np.concatenate([ctx.corners[ctx.seen.whole].reshape(-1, 3), ctx.seen.points])
+    d_l = -(pts @ reach.view[2, :3] + reach.view[2, 3])
+    d_c = np.maximum(np.linalg.norm(pts - ctx.cam_pos, axis=1), ctx.camera.znear)
+    ok = d_l > 0
+    ratio = float(np.max(d_l[ok] / d_c[ok])) if ok.any() else 0.0
+    # (at one camera pixel per texel: the half pixel 'auto' aims at is a target, not a need)
+    needed = extent * ratio / (ctx.pixel_per_distance / AUTO_TEXEL_PIXELS)
     return Fit(kind="perspective", view=reach.view, proj=proj, near=near, far=far, map_size=size,
-               texel=(0.0, float(max(a_hi - a_lo)) / size))
+               texel=(0.0, float(max(a_hi - a_lo)) / size), needed=needed)
 
 
 # --------------------------------------------------------------------------------------------

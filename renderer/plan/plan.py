@@ -14,11 +14,14 @@ relative to the scene's origin (see :class:`renderer.gl.resources.GpuScene`).
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .cascades import CascadeFit, plan_cascades
 from .context import PlanContext
 from .culling import select_casters
 from .fit import Fit, Skip, Subject, choose_method
@@ -63,6 +66,20 @@ class LightShadow:
         View matrix (4, 4) of each of the 6 faces (cube maps only).
     skipped : dict of str to int
         What the pass leaves out, by reason (non-zero counts only).
+    cascades : tuple of LightShadow
+        A cascaded directional light's maps, near to far (empty otherwise): each one an
+        ``"ortho"`` map with its own fit, casters, ``cascade`` number and ``split``. This entry
+        then describes the nearest cascade.
+    cascade : int
+        This map's cascade number (-1: not a cascade).
+    split : tuple of float
+        Camera distances (along the view axis) this cascade is chosen for: ``(near, far)``.
+    blend : float
+        Width of the band before ``split[1]`` where this cascade fades into the next.
+    texel_pixels : float
+        Camera pixels one texel of this cascade covers at its near end (0: not a cascade).
+    needed : float
+        Spot maps: the texels per side its most demanding seen receiver wants (0: not known).
     """
 
     index: int
@@ -80,6 +97,31 @@ class LightShadow:
     faces: list[int] = field(default_factory=list)
     face_views: list[np.ndarray] = field(default_factory=list)
     skipped: dict[str, int] = field(default_factory=dict)
+    cascades: tuple[LightShadow, ...] = ()
+    cascade: int = -1
+    split: tuple[float, float] = (0.0, math.inf)
+    blend: float = 0.0
+    texel_pixels: float = 0.0
+    needed: float = 0.0
+
+    @property
+    def maps(self) -> tuple[LightShadow, ...]:
+        """The maps this light renders: its cascades, or itself (none without a pass)."""
+        if self.kind is None:
+            return ()
+        return self.cascades or (self,)
+
+    @classmethod
+    def cascaded(cls, index: int, light: Light, position: np.ndarray,
+                 fits: list[CascadeFit]) -> LightShadow:
+        """A directional light with one map per cascade (near to far)."""
+        maps = tuple(
+            dataclasses.replace(
+                cls.fitted(index, light, position, f.fit, f.casters, f.skipped),
+                cascade=k, split=(f.slice.near, f.slice.far), blend=f.slice.blend,
+                texel_pixels=f.texel_pixels)
+            for k, f in enumerate(fits))
+        return dataclasses.replace(maps[0], cascades=maps)
 
     @classmethod
     def fitted(cls, index: int, light: Light, position: np.ndarray, fit: Fit,
@@ -88,7 +130,7 @@ class LightShadow:
         return cls(index=index, light=light, position=position, kind=fit.kind, view=fit.view,
                    proj=fit.proj, near=fit.near, far=fit.far, map_size=fit.map_size,
                    texel=fit.texel, casters=casters, faces=fit.faces, face_views=fit.face_views,
-                   skipped=skipped)
+                   skipped=skipped, needed=fit.needed)
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"type": self.light.type, "shadow_map": self.kind}
@@ -104,6 +146,17 @@ class LightShadow:
         )
         if self.kind == "cube":
             d["faces"] = list(self.faces)
+        if self.cascades:
+            d.update(
+                map_size=max(c.map_size for c in self.cascades),
+                casters=len(set().union(*(c.casters for c in self.cascades))),
+                cascades=[{"split": [c.split[0], c.split[1]], "blend": c.blend,
+                           "map_size": c.map_size, "texel_pixels": c.texel_pixels,
+                           "casters": len(c.casters),
+                           "skipped": dict(c.skipped), "near": c.near, "far": c.far}
+                          for c in self.cascades],
+            )
+            del d["skipped"], d["near"], d["far"]
         return d
 
 
@@ -123,6 +176,9 @@ class RenderPlan:
         One per light, in the request's order.
     outputs : list of str
     optimize : bool
+    warnings : list of str
+        What the plan had to approximate (cascades cut by the map slots, maps that would need
+        more than the size limit).
     """
 
     camera: Camera
@@ -132,11 +188,13 @@ class RenderPlan:
     lights: list[LightShadow]
     outputs: list[str]
     optimize: bool
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def map_lights(self) -> list[LightShadow]:
-        """The lights that have a light pass."""
-        return [lp for lp in self.lights if lp.kind is not None]
+        """Every map the light pass renders, in light order: one per shadowed light, one per
+        cascade for a cascaded one."""
+        return [m for lp in self.lights for m in lp.maps]
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -173,15 +231,43 @@ def make_plan(
     ctx = PlanContext.build(scene, camera, origin, params)
     n = len(scene.instances)
     visible = np.flatnonzero(ctx.in_view).tolist() if params.optimize else list(range(n))
+    planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
+    warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     return RenderPlan(
         camera=camera,
         origin=origin,
         visible=visible,
         culled=n - len(visible),
-        lights=[plan_light(ctx, i, light) for i, light in enumerate(lights)],
+        lights=planned,
         outputs=list(params.outputs),
         optimize=params.optimize,
+        warnings=[w for w in warnings if w],
     )
+
+
+def _resolution_warning(lp: LightShadow, params: RenderParams) -> str:
+    """A spot light whose map cannot give every seen receiver its texel size (receivers from
+    very near to very far): what it would need, and how much coarser the limit leaves it."""
+    if params.shadows.map_size != "auto" or lp.needed <= params.shadows.max_map_size:
+        return ""
+    want = 1 << max(0, int(math.ceil(math.log2(lp.needed))))
+    return (f"light {lp.index}: the {lp.light.type} light's map would need {want}x{want} "
+            f"texels for its nearest visible receivers; max_map_size {lp.map_size} leaves "
+            f"their shadows up to {lp.needed / lp.map_size:.1f}x coarser")
+
+
+def _cascade(ctx: PlanContext, planned: list[LightShadow]) -> list[LightShadow]:
+    """Directional lights with cascades where one map is not enough (:mod:`.cascades`)."""
+    out = []
+    for lp in planned:
+        if lp.kind != "ortho" or ctx.params.shadows.cascades == 1:
+            out.append(lp)
+            continue
+        single = Fit(kind="ortho", view=lp.view, proj=lp.proj, near=lp.near, far=lp.far,
+                     map_size=lp.map_size, texel=lp.texel)
+        fits = plan_cascades(ctx, lp.light, lp.position, single)
+        out.append(LightShadow.cascaded(lp.index, lp.light, lp.position, fits) if fits else lp)
+    return out
 
 
 def plan_light(ctx: PlanContext, index: int, light: Light) -> LightShadow:

@@ -1,7 +1,7 @@
 // Shading terms of the camera pass: sRGB conversions, the lights' falloff, and the depth bias.
 //
 // The including stage declares NUM_LIGHTS, LIGHT_TYPES, HAS_SPOT, HAS_POSITIONAL, NUM_MAPS_2D,
-// NUM_MAPS_CUBE and HW_PCF.
+// NUM_MAPS_CUBE, NUM_MAPS_CSM and HW_PCF.
 
 vec3 srgb_to_linear(vec3 c) {
     return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
@@ -53,7 +53,7 @@ float light_attenuation(int i, vec3 p, out vec3 l) {
 }
 #endif
 
-#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0
+#if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0 || NUM_MAPS_CSM > 0
 uniform vec4 u_bias;         // constant, slope, slope max, normal offset (texels)
 uniform float u_bias_steps;  // quantisation bias in steps of the encoding
 

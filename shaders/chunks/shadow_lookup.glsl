@@ -9,9 +9,11 @@
 #if ENCODING == ENC_DEPTH
 #define MAP2D sampler2DShadow
 #define MAPCUBE samplerCubeShadow
+#define MAPARRAY sampler2DArrayShadow
 #else
 #define MAP2D sampler2D
 #define MAPCUBE samplerCube
+#define MAPARRAY sampler2DArray
 #endif
 
 float compare_2d(MAP2D map, vec2 uv, float ref) {
@@ -34,6 +36,30 @@ float shadow_2d(MAP2D map, vec2 uv, float ref, vec2 dref, float size) {
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
 #else
     return compare_2d(map, uv, ref);
+#endif
+}
+
+// The same on layer `layer` of an array map (cascades).
+float compare_layer(MAPARRAY map, vec2 uv, float layer, float ref) {
+#if ENCODING == ENC_DEPTH
+    return texture(map, vec4(uv, layer, ref));
+#else
+    return step(ref, decode_depth(texture(map, vec3(uv, layer))));
+#endif
+}
+
+float shadow_layer(MAPARRAY map, vec2 uv, float layer, float ref, vec2 dref, float size) {
+#if FILTER_PCF
+    float sum = 0.0;
+    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
+        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
+            vec2 o = vec2(float(x), float(y));
+            sum += compare_layer(map, uv + o / size, layer, ref + dot(dref, o));
+        }
+    }
+    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+#else
+    return compare_layer(map, uv, layer, ref);
 #endif
 }
 

@@ -1,0 +1,349 @@
+"""The fuzz suite (``fuzz_cases.py``) against the library and against a real server.
+
+- The library: ``load_scene`` (no GL) then ``Renderer.render`` on whatever loaded: every case
+  either works or raises a :class:`~shadowmap.renderer.ShadowMapError` subclass, never anything
+  else; the cases that must be refused are refused and the controls render.
+- A real server (``shadowmap serve`` in a subprocess, default settings but a smaller upload
+  limit): every case is answered 4xx or a correct 200 (a PNG of the size asked), never 5xx;
+  ``/healthz`` answers after each; no file outside the upload is read (a sentinel file beside the
+  server's working directory holds a valid buffer, so reading it would turn a refusal into a
+  render, and the refusal must name the URI); no outbound connection (a socket this test listens
+  on must see none); the server's log holds no traceback.
+
+Every failure is collected and reported together, with the case names.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import models_dir
+from fuzz_cases import SMALL, SMALL_JSON, TRI, Case, Outside, generate
+from shadowmap.renderer import Limits, RenderParams, ShadowMapError, load_scene
+
+#: The service's upload limit for the fuzz server: small, so that the zip bomb (64 MiB of
+#: zeros) is over the unpacked limit (4x) without a large upload.
+FUZZ_UPLOAD_BYTES = 8 * 2**20
+
+
+@pytest.fixture(scope="module")
+def outside(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Outside, socket.socket,
+                                                                       Path]]:
+    """The sentinel beside the server's working directory, and a listening socket."""
+    root = tmp_path_factory.mktemp("fuzz")
+    work = root / "work"
+    work.mkdir()
+    sentinel = root / "sentinel.bin"
+    sentinel.write_bytes(TRI)  # a valid buffer: read, it would make a refused case render
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(16)
+    listener.setblocking(False)
+    try:
+        yield Outside(sentinel, listener.getsockname()[1]), listener, work
+    finally:
+        listener.close()
+
+
+@pytest.fixture(scope="module")
+def cases(outside: tuple[Outside, socket.socket, Path]) -> list[Case]:
+    return generate(models_dir(), outside[0])
+
+
+def assert_no_connection(listener: socket.socket) -> None:
+    try:
+        conn, addr = listener.accept()
+    except BlockingIOError:
+        return
+    conn.close()
+    raise AssertionError(f"something connected to the test's port from {addr}")
+
+
+# ------------------------------------------------------------------------------------------------
+# The library
+# ------------------------------------------------------------------------------------------------
+
+
+def library_input(case: Case) -> tuple[bytes, str, dict[str, bytes] | None] | None:
+    """(scene bytes, file type, resources) for ``load_scene``; None for a case only the service
+    can take (params text, HTTP, a zip the library would have to unpack)."""
+    if case.scene is None or case.kind in ("params", "http"):
+        return None
+    if case.kind != "zip":
+        return case.scene, case.filename.rsplit(".", 1)[-1], case.resources
+    if case.resources is None:
+        return None
+    with zipfile.ZipFile(io.BytesIO(case.scene)) as zf:
+        scenes = [n for n in zf.namelist() if n.endswith((".gltf", ".glb"))]
+        return zf.read(scenes[0]), scenes[0].rsplit(".", 1)[-1], case.resources
+
+
+def library_params(case: Case) -> dict[str, Any] | None:
+    """The params as the library takes them (a dict); None when the text is not JSON the
+    library could be given (the service's parser refuses it)."""
+    if case.params is None:
+        return dict(SMALL)
+    try:
+        obj = json.loads(case.params)
+    except (ValueError, RecursionError):
+        return None
+    return obj if isinstance(obj, dict) else None
+
+
+def check_outcome(case: Case, outcome: str, failures: list[str]) -> None:
+    if outcome.startswith("crash"):
+        failures.append(f"{case.name}: {outcome}")
+    elif case.expect == "error" and outcome != "error":
+        failures.append(f"{case.name}: expected a refusal, got {outcome}")
+    elif case.expect == "ok" and outcome != "ok":
+        failures.append(f"{case.name}: expected a render, got {outcome}")
+
+
+def load_outcome(case: Case) -> tuple[str, Any]:
+    """("ok", scene), ("error", message) or ("crash ...", None)."""
+    given = library_input(case)
+    assert given is not None
+    data, file_type, resources = given
+    try:
+        scene = load_scene(data, file_type=file_type, resources=resources, limits=Limits())
+    except ShadowMapError as exc:
+        return "error", str(exc)
+    except Exception as exc:  # noqa: BLE001 - what the test looks for
+        return f"crash: {type(exc).__name__}: {str(exc)[:200]}", None
+    return "ok", scene
+
+
+def test_fuzz_cases_are_many_and_deterministic(cases, outside):
+    again = generate(models_dir(), outside[0])
+    assert [(c.name, c.scene, c.params) for c in cases] == [
+        (c.name, c.scene, c.params) for c in again]
+    assert len(cases) >= 300
+    kinds = {c.kind for c in cases}
+    assert kinds == {"glb", "gltf", "zip", "params", "http"}
+
+
+def test_fuzz_library_load(cases):
+    """``load_scene``: a ShadowMapError or a scene, for every case; in well under a second each
+    (the slowest is reported)."""
+    failures: list[str] = []
+    slowest = (0.0, "")
+    tried = 0
+    for case in cases:
+        if library_input(case) is None:
+            continue
+        tried += 1
+        t = time.perf_counter()
+        outcome, _ = load_outcome(case)
+        slowest = max(slowest, (time.perf_counter() - t, case.name))
+        check_outcome(case, outcome, failures)
+    assert tried >= 250
+    assert not failures, f"{len(failures)} of {tried} cases:\n" + "\n".join(failures)
+    assert slowest[0] < 2.0, f"slowest load: {slowest}"
+
+
+@pytest.mark.gl
+def test_fuzz_library_render(cases, renderer):
+    """``Renderer.render`` on every case that loaded, and every params case the library can be
+    given: a ShadowMapError or a result of the size asked."""
+    failures: list[str] = []
+    base = load_scene(models_dir() / "cube.glb")
+    rendered = 0
+    for case in cases:
+        params = library_params(case)
+        if params is None or case.kind == "http":
+            continue
+        if case.kind == "params":
+            scene = base
+        else:
+            if library_input(case) is None:
+                continue
+            outcome, scene = load_outcome(case)
+            if outcome != "ok":
+                continue  # checked by test_fuzz_library_load
+        try:
+            result = renderer.render(scene, params)
+        except ShadowMapError:
+            outcome = "error"
+        except Exception as exc:  # noqa: BLE001 - what the test looks for
+            outcome = f"crash: {type(exc).__name__}: {str(exc)[:200]}"
+        else:
+            outcome = "ok"
+            rendered += 1
+            asked = RenderParams.model_validate(params)
+            want = (asked.height, asked.width)
+            if result.color is None or result.color.shape[:2] != want:
+                failures.append(f"{case.name}: color {getattr(result.color, 'shape', None)}, "
+                                f"asked {want}")
+        check_outcome(case, outcome, failures)
+    assert rendered >= 50
+    assert not failures, f"{len(failures)} cases:\n" + "\n".join(failures)
+
+
+# ------------------------------------------------------------------------------------------------
+# A real server
+# ------------------------------------------------------------------------------------------------
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server(outside: tuple[Outside, socket.socket, Path]) -> Iterator[tuple[str, Path]]:
+    """``shadowmap serve`` with default settings (but the upload limit), working directory
+    beside the sentinel; yields (base URL, log file)."""
+    work = outside[2]
+    port = free_port()
+    log = work.parent / "server.log"
+    env = dict(os.environ, SHADOWMAP_MAX_UPLOAD_BYTES=str(FUZZ_UPLOAD_BYTES))
+    with open(log, "wb") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "shadowmap", "serve", "--host",
+                                 "127.0.0.1", "--port", str(port)], cwd=work, env=env,
+                                stdout=out, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 90
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"server exited with {proc.returncode}:\n{log.read_text()}")
+            try:
+                if httpx.get(url + "/healthz", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"server not ready:\n{log.read_text()}")
+            time.sleep(0.2)
+        yield url, log
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
+
+def send_raw(url: str, raw: bytes) -> int | None:
+    """Send ``raw`` on a new connection; the response's status, or None when the server closed
+    the connection without one (its answer to bytes that are not HTTP)."""
+    host, port = url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=30) as s:
+        try:
+            s.sendall(raw)
+            s.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass  # the server may close the connection before reading it all
+        data = b""
+        try:
+            while chunk := s.recv(65536):
+                data += chunk
+                if b"\r\n" in data:
+                    break
+        except (ConnectionResetError, TimeoutError):
+            pass
+    if not data.startswith(b"HTTP/"):
+        return None
+    return int(data.split(b" ", 2)[1])
+
+
+def send(client: httpx.Client, case: Case) -> httpx.Response:
+    if case.kind == "http":
+        req = dict(case.http or {})
+        if "files" in req:
+            return client.post("/render", files=req["files"])
+        return client.request(req.get("method", "POST"), "/render",
+                              headers=req.get("headers", {}), content=req.get("content"),
+                              params=req.get("query"))
+    if case.kind == "params":
+        return client.post("/render", content=(case.params or "").encode("utf-8",
+                                                                         "surrogatepass"),
+                           headers={"Content-Type": "application/json"})
+    assert case.scene is not None
+    form = {"params": case.params} if case.params is not None else {}
+    return client.post("/render", files={"scene": (case.filename, case.scene,
+                                                   "application/octet-stream")}, data=form)
+
+
+def check_response(case: Case, resp: httpx.Response, failures: list[str]) -> None:
+    status = resp.status_code
+    if status >= 500:
+        failures.append(f"{case.name}: {status} {resp.text[:300]}")
+        return
+    if case.expect == "error" and not 400 <= status < 500:
+        failures.append(f"{case.name}: expected 4xx, got {status}")
+    if case.expect == "ok" and status != 200:
+        failures.append(f"{case.name}: expected 200, got {status} {resp.text[:300]}")
+    if 400 <= status < 500:
+        try:
+            body = resp.json()
+        except ValueError:
+            failures.append(f"{case.name}: {status} is not JSON: {resp.text[:200]}")
+            return
+        if case.outside and case.kind == "gltf" and "refusing URI" not in body.get("detail", ""):
+            failures.append(f"{case.name}: the refusal does not name the URI: {body}")
+    elif status == 200 and resp.headers.get("content-type") == "image/png":
+        img = np.array(Image.open(io.BytesIO(resp.content)))
+        if case.params == SMALL_JSON and img.shape[:2] != (SMALL["height"], SMALL["width"]):
+            failures.append(f"{case.name}: a {img.shape} picture for {SMALL}")
+    elif status not in (200, 204) and not 300 <= status < 400:
+        failures.append(f"{case.name}: unexpected {status}")
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_fuzz_server(cases, server, outside):
+    """Every case against a real server: 4xx or a correct 200, healthy after each, nothing
+    outside the upload read, no outbound connection, no traceback in the log."""
+    url, log = server
+    listener = outside[1]
+    failures: list[str] = []
+    statuses: dict[int, int] = {}
+    t0 = time.perf_counter()
+    with httpx.Client(base_url=url, timeout=90) as client:
+        for case in cases:
+            if case.http is not None and "raw" in case.http:
+                status = send_raw(url, case.http["raw"])
+                statuses[status or 0] = statuses.get(status or 0, 0) + 1  # 0: closed, no answer
+                if status is not None and status >= 500:
+                    failures.append(f"{case.name}: {status}")
+            else:
+                try:
+                    resp = send(client, case)
+                except httpx.HTTPError as exc:
+                    failures.append(f"{case.name}: no response ({type(exc).__name__}: {exc})")
+                else:
+                    statuses[resp.status_code] = statuses.get(resp.status_code, 0) + 1
+                    check_response(case, resp, failures)
+            try:
+                health = client.get("/healthz", timeout=20)
+                healthy = health.status_code == 200
+            except httpx.HTTPError:
+                healthy = False
+            if not healthy:
+                failures.append(f"{case.name}: /healthz does not answer 200 after it")
+                break
+    seconds = time.perf_counter() - t0
+    assert_no_connection(listener)
+    text = log.read_text(errors="replace")
+    assert "Traceback" not in text, text[-5000:]
+    print(f"{len(cases)} cases in {seconds:.1f} s: statuses {dict(sorted(statuses.items()))}")
+    assert not failures, f"{len(failures)} of {len(cases)} cases:\n" + "\n".join(failures)
+    assert not any(s >= 500 for s in statuses)
