@@ -137,7 +137,9 @@ KNOWN_GAPS = {
     # light, under the lip of its rim: the slope-scaled bias that keeps grazing receivers free
     # of acne lifts the strip out of the shadow (0.976 with map_size 4096; slope_max 3: 0.947).
     "Fox.glb": "directional IoU 0.880: the shadow on a grazing receiver under a lip is missed",
-    "AlphaBlendModeTest.glb": "directional IoU 0.967: blended materials cast at alpha 0.5",
+    # The shadow is a sliver along the base, seen nearly edge-on: the automatic size (2048 here)
+    # sets texels by pixels at the receivers' distance, not by the grazing view (4096: 0.992).
+    "AlphaBlendModeTest.glb": "directional IoU 0.966: a thin shadow seen edge-on needs 4096",
 }
 
 
