@@ -34,7 +34,7 @@ from shadowmap.renderer import RenderParams
 from .deps import demo_upload
 from .encode import RenderJSON
 from .errors import install_handlers
-from .routes import health, page, render
+from .routes import docs, health, page, render
 from .settings import Settings
 from .supervisor import Supervisor
 
@@ -129,8 +129,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings : Settings, optional
         Defaults to reading ``SHADOWMAP_*`` from the environment.
     """
+    # /docs and /redoc are added by install_docs, with assets served here rather than a CDN.
     app = FastAPI(title="shadowmap-service", version=__version__,
-                  description=DESCRIPTION, lifespan=lifespan)
+                  description=DESCRIPTION, lifespan=lifespan, docs_url=None, redoc_url=None)
     app.state.settings = settings or Settings()
     app.state.worker = None  # the Supervisor, while the lifespan runs
     install_handlers(app)
@@ -138,6 +139,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(render.router)
     app.include_router(health.router)
     app.include_router(page.router)
+    docs.install_docs(app)
     _install_openapi(app)
     return app
 

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -152,3 +156,187 @@ def test_namespace_wins_over_a_users_own_app_package(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert str(tmp_path) not in proc.stdout
     assert shadowmap("--version", cwd=tmp_path).returncode == 0
+
+
+# --- the one-liner flags ---------------------------------------------------------------------
+
+ONE_LINER = ["--size", "800x600", "--light-dir", "-1,-2,-1", "--ground",
+             "--camera-orbit", "30deg,60deg,2m"]
+
+
+@pytest.mark.gl
+def test_one_liner_writes_the_png_only(models, tmp_path):
+    proc = shadowmap("render", str(models / "Duck.glb"), "-o", "duck.png", *ONE_LINER,
+                     cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    image = Image.open(tmp_path / "duck.png")
+    assert image.format == "PNG" and image.size == (800, 600)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["duck.png"]  # no ./out without --out
+
+
+def test_orbit_eye_follows_model_viewer():
+    from shadowmap.cli import _orbit, orbit_eye
+
+    theta, phi, r = _orbit("30deg,60deg,2m")
+    eye = orbit_eye(np.zeros(3), theta, phi, r)
+    s = np.sin(np.radians(60))
+    np.testing.assert_allclose(eye, [2 * s * 0.5, 2 * 0.5, 2 * s * np.cos(np.radians(30))])
+    # theta 0 is in front (+Z), 90deg on +X, phi 0 straight above; rad, cm and bare numbers
+    np.testing.assert_allclose(orbit_eye(np.ones(3), *_orbit("0 1.5707963267948966rad 50cm")),
+                               [1, 1, 1.5], atol=1e-12)
+    np.testing.assert_allclose(orbit_eye(np.zeros(3), *_orbit("90deg,90deg,3")), [3, 0, 0],
+                               atol=1e-12)
+    assert _orbit("auto,auto,auto") == (0.0, pytest.approx(np.radians(75)), None)
+
+
+@pytest.mark.gl
+def test_camera_orbit_equals_the_explicit_eye_and_flags_override_params(models, tmp_path):
+    """--camera-orbit around the bounds' centre renders the same image as the equivalent
+    eye/target request, and every flag wins over the PARAMS file's field."""
+    from shadowmap.cli import _orbit, orbit_eye
+    from shadowmap.renderer import load_scene
+
+    lo, hi = load_scene(models / "Duck.glb").bounds
+    centre = (lo + hi) / 2
+    eye = orbit_eye(centre, *_orbit("30deg,60deg,2m"))
+    explicit = tmp_path / "explicit.json"
+    explicit.write_text(json.dumps({
+        "width": 800, "height": 600, "ground": True,
+        "camera": {"eye": eye.tolist(), "target": centre.tolist()},
+        "lights": [{"type": "directional", "direction": [-1, -2, -1]}],
+    }))
+    # Everything the flags set is different here; yfov_deg stays from the file.
+    overridden = tmp_path / "overridden.json"
+    overridden.write_text(json.dumps({
+        "width": 64, "height": 48, "ground": False,
+        "camera": {"pose": np.eye(4).tolist()},
+        "lights": [{"type": "point", "position": [1, 3, 1]}, {"direction": [0, -1, 0]}],
+    }))
+    a, b = tmp_path / "a", tmp_path / "b"
+    proc = shadowmap("render", str(models / "Duck.glb"), "--params", str(explicit),
+                     "--out", str(a))
+    assert proc.returncode == 0, proc.stderr
+    proc = shadowmap("render", str(models / "Duck.glb"), "--params", str(overridden),
+                     *ONE_LINER, "--out", str(b), "-o", str(tmp_path / "c.png"))
+    assert proc.returncode == 0, proc.stderr
+    first = np.asarray(Image.open(a / "color.png"))
+    assert first.shape == (600, 800, 3)
+    np.testing.assert_array_equal(first, np.asarray(Image.open(b / "color.png")))
+    np.testing.assert_array_equal(first, np.asarray(Image.open(tmp_path / "c.png")))
+    assert (b / "report.json").is_file()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--size", "800"], "--size must be WIDTHxHEIGHT"),
+        (["--size", "0x600"], "at least 1"),
+        (["--size", "800x600", "--width", "10"], "not both"),
+        (["--camera-orbit", "30deg,60deg"], "takes 3"),
+        (["--camera-orbit", "30deg,60grad,2m"], "polar angle"),
+        (["--camera-orbit", "30deg,200deg,2m"], "between 0deg and 180deg"),
+        (["--camera-orbit", "30deg,60deg,-2m"], "greater than 0"),
+        (["--camera-orbit", "30deg,60deg,2km"], "radius"),
+        (["--camera-target", "1,2"], "takes 3"),
+        (["--light-dir", "-1,x,-1"], "not a number"),
+        (["--light-dir", "0,0,0"], "zero vector"),
+        (["--light-dir", "1,nan,0"], "finite"),
+        (["-o", "x.png", "--outputs", "depth"], "color"),
+    ],
+)
+def test_bad_flag_values_exit_2_with_one_line(models, tmp_path, args, message):
+    proc = shadowmap("render", str(models / "Duck.glb"), *args, cwd=tmp_path)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], proc.stderr
+    assert lines[0].startswith("shadowmap: error: ")
+
+
+def test_render_help_is_plain_text_with_the_one_liner():
+    proc = shadowmap("render", "--help")
+    assert proc.returncode == 0
+    assert "shadowmap render Duck.glb -o duck.png --size 800x600" in proc.stdout
+    assert "``" not in proc.stdout and ":mod:" not in proc.stdout
+    top = shadowmap("--help")
+    assert top.returncode == 0 and "``" not in top.stdout and ":mod:" not in top.stdout
+
+
+# --- scripts/serve ---------------------------------------------------------------------------
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _serve_dry_run(root, *args, **env):
+    return subprocess.run(["bash", str(root / "scripts" / "serve"), *args], capture_output=True,
+                          text=True, timeout=60,
+                          env={**os.environ, "SHADOWMAP_DRY_RUN": "1", **env})
+
+
+def test_serve_script_passes_host_port_workers_through():
+    proc = _serve_dry_run(ROOT, "--port", "8080", "--host", "0.0.0.0", "--workers", "2",
+                          SHADOWMAP_WORKERS="3")
+    assert proc.returncode == 0, proc.stderr
+    line = proc.stdout.strip()
+    assert line.startswith("would run: ") and line.split()[2].endswith("/.venv/bin/shadowmap")
+    # the environment's value first, so the command line's wins (argparse keeps the last)
+    assert line.split()[3:] == ["serve", "--workers", "3", "--port", "8080", "--host", "0.0.0.0",
+                                "--workers", "2"]
+
+
+@pytest.mark.parametrize(
+    "stamp_extras, env, installs",
+    [
+        ("server,test,bench", {}, None),           # serve: a test venv covers [server]
+        ("server", {}, None),
+        ("server", {"SHADOWMAP_EXTRAS": "server,test"}, "server,test"),
+        ("test", {}, "server"),
+        (None, {}, "server"),                      # no stamp yet
+    ],
+)
+def test_serve_installs_the_server_extra_only(tmp_path, stamp_extras, env, installs):
+    """A copy of the scripts beside a fake venv: the dry run says whether pip would run and
+    with which extras; the stamp is kept when it records the extras asked for."""
+    import shutil
+
+    shutil.copytree(ROOT / "scripts", tmp_path / "scripts")
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    (tmp_path / ".venv" / "bin").mkdir(parents=True)
+    (tmp_path / ".venv" / "bin" / "python").symlink_to(sys.executable)
+    if stamp_extras is not None:
+        digest = hashlib.sha256((tmp_path / "pyproject.toml").read_bytes()).hexdigest()
+        (tmp_path / ".venv" / ".setup-stamp").write_text(f"{digest} [{stamp_extras}]\n")
+    proc = _serve_dry_run(tmp_path, **env)
+    assert proc.returncode == 0, proc.stderr
+    if installs is None:
+        assert "pip install" not in proc.stderr, proc.stderr
+    else:
+        assert f'would run pip install -e ".[{installs}]"' in proc.stderr, proc.stderr
+    assert proc.stdout.strip().endswith("/.venv/bin/shadowmap serve")
+
+
+@pytest.mark.slow
+def test_serve_script_serves_on_the_given_port(tmp_path):
+    import socket
+    import time
+    import urllib.request
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(["bash", str(ROOT / "scripts" / "serve"), "--port", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 240
+        while True:
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=2) as r:
+                    assert r.status == 200
+                    break
+            except OSError:
+                assert time.monotonic() < deadline, "the service did not start"
+                time.sleep(0.5)
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=60)

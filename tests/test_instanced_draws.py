@@ -263,3 +263,26 @@ def test_renderer_reuses_the_grounded_scene(renderer):
     assert again is not first and renderer._with_ground(scene) is again
     result = renderer.render(scene, RenderParams(width=64, height=48, ground=True))
     assert result.color is not None
+
+
+@pytest.mark.gl
+def test_an_upload_counts_the_bytes_its_buffers_hold(renderer):
+    """The upload cache's budget sees every buffer: vertices, indices and the instance
+    matrices (64 bytes an instance), read back from GL's own buffer sizes."""
+    from OpenGL import GL
+
+    from shadowmap.renderer.gl.resources import GpuScene
+
+    boxes = T.many_small_objects(50)
+    gpu = GpuScene.upload(boxes)
+    try:
+        held = 0
+        for gp in gpu.primitives:
+            for buf in gp.mesh.buffers:
+                GL.glBindBuffer(GL.GL_ARRAY_BUFFER, buf)
+                held += int(GL.glGetBufferParameteriv(GL.GL_ARRAY_BUFFER, GL.GL_BUFFER_SIZE))
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, 0)
+        assert held >= 64 * len(boxes.instances)
+        assert gpu.nbytes == held  # untextured: buffers only
+    finally:
+        gpu.release()

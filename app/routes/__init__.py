@@ -1,1 +1,1 @@
-"""HTTP routes: rendering, health and version, and the web page."""
+"""HTTP routes: rendering, health and version, the web page, and the API docs pages."""

@@ -49,6 +49,8 @@ class VertexArray:
         vertices = np.ascontiguousarray(np.hstack(columns), dtype=np.float32)
         self.vao = int(GL.glGenVertexArrays(1))
         self.buffers: list[int] = []
+        #: bytes of its buffers on the GPU (vertices, model matrices, indices)
+        self.nbytes = 0
         GL.glBindVertexArray(self.vao)
         try:
             self._buffer(GL.GL_ARRAY_BUFFER, vertices)
@@ -84,6 +86,7 @@ class VertexArray:
         self.buffers.append(buf)
         GL.glBindBuffer(target, buf)
         GL.glBufferData(target, data.nbytes, data, GL.GL_STATIC_DRAW)
+        self.nbytes += data.nbytes
         return buf
 
     def read_poses(self) -> np.ndarray:
@@ -356,6 +359,9 @@ class GpuScene:
         that primitive's instance buffer (read-only).
     blended : ndarray, shape (len(primitives),), bool
         GPU primitives whose material blends (``alpha_mode == "BLEND"``).
+    nbytes : int
+        What the upload holds on the GPU: every vertex, instance-matrix and index buffer, and
+        each texture once with its mipmaps (the upload cache's budget counts this).
     """
 
     scene: Scene
@@ -445,7 +451,7 @@ class GpuScene:
                     indirect=gs.indirect,
                 )
                 gs.primitives.append(gp)
-                gs.nbytes += prim.positions.nbytes * (2 + has_uv + has_color) + prim.indices.nbytes
+                gs.nbytes += mesh.nbytes  # what its buffers hold, instance matrices included
         except Exception:
             gs.release()
             for t in textures.values():
