@@ -9,17 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import re
-import socket
-import subprocess
-import sys
-import tempfile
-import time
 from html.parser import HTMLParser
 
 import httpx
 import pytest
 
-from test_page import chromium, run_browser
+from test_page import chromium, run_browser, uvicorn_server
 
 BASE = "http://app"
 
@@ -104,35 +99,8 @@ def test_docs_routes_not_in_schema():
 def docs_server():
     """The app on a free localhost port, without its lifespan (no render worker, no GL)."""
     chromium()  # skip before starting anything when there is no browser
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    log = tempfile.TemporaryFile()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", "--factory", "shadowmap.app.main:create_app", "--host",
-         "127.0.0.1", "--port", str(port), "--log-level", "warning", "--lifespan", "off"],
-        stdout=log, stderr=subprocess.STDOUT, cwd=tempfile.gettempdir(),
-    )
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 60
-        while True:
-            if proc.poll() is not None or time.monotonic() > deadline:
-                log.seek(0)
-                raise RuntimeError("server did not start:\n" + log.read().decode(errors="replace"))
-            try:
-                if httpx.get(url + "/openapi.json", timeout=2).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.2)
+    with uvicorn_server("--lifespan", "off", ready="/openapi.json", timeout=60) as url:
         yield url
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        log.close()
 
 
 # Every host name but 127.0.0.1 fails to resolve, and no proxy: as on a machine without internet.

@@ -8,6 +8,7 @@ and ``--screenshot`` shows what a user would see.
 from __future__ import annotations
 
 import base64
+import contextlib
 import io
 import os
 import shutil
@@ -16,6 +17,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from html.parser import HTMLParser
 
 import httpx
@@ -37,31 +39,29 @@ def chromium() -> str:
                 "the page test needs a real browser")
 
 
-@pytest.fixture(scope="module")
-def server_url():
-    """The service on a free localhost port, in a subprocess."""
-    chromium()  # skip before starting anything when there is no browser
-
+@contextlib.contextmanager
+def uvicorn_server(*args: str, ready: str = "/healthz", timeout: float = 90.0,
+                   env: dict | None = None) -> Iterator[str]:
+    """The service under uvicorn on a free localhost port, in a subprocess; yields its URL once
+    ``ready`` answers 200 (``args``: more uvicorn options)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    env = dict(os.environ)
-    env["SHADOWMAP_MAX_PIXELS"] = str(1024 * 1024)
     log = tempfile.TemporaryFile()
     proc = subprocess.Popen(
         [sys.executable, "-m", "uvicorn", "--factory", "shadowmap.app.main:create_app", "--host",
-         "127.0.0.1", "--port", str(port), "--log-level", "warning"],
+         "127.0.0.1", "--port", str(port), "--log-level", "warning", *args],
         env=env, stdout=log, stderr=subprocess.STDOUT, cwd=tempfile.gettempdir(),
     )
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 90
+        deadline = time.monotonic() + timeout
         while True:
             if proc.poll() is not None or time.monotonic() > deadline:
                 log.seek(0)
                 raise RuntimeError("server did not start:\n" + log.read().decode(errors="replace"))
             try:
-                if httpx.get(url + "/healthz", timeout=2).status_code == 200:
+                if httpx.get(url + ready, timeout=2).status_code == 200:
                     break
             except httpx.HTTPError:
                 time.sleep(0.2)
@@ -73,6 +73,16 @@ def server_url():
         except subprocess.TimeoutExpired:
             proc.kill()
         log.close()
+
+
+@pytest.fixture(scope="module")
+def server_url():
+    """The service on a free localhost port, in a subprocess."""
+    chromium()  # skip before starting anything when there is no browser
+    env = dict(os.environ)
+    env["SHADOWMAP_MAX_PIXELS"] = str(1024 * 1024)
+    with uvicorn_server(env=env) as url:
+        yield url
 
 
 def run_browser(url: str, *args: str) -> subprocess.CompletedProcess:
