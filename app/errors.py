@@ -11,8 +11,10 @@ exception                    status  ``error``
 ``SceneError`` (any other)   400     ``invalid_scene``
 ``RequestError``             422     ``invalid_request`` (plus ``errors``)
 ``LimitError``               422     ``limit_exceeded`` (plus ``limit``)
-pydantic ``ValidationError`` 422     ``invalid_params`` (plus ``errors``)
+pydantic ``ValidationError`` 422     ``invalid_params`` (plus ``errors``, each with its JSON
+                                     ``pointer``, and ``field``: the first pointer)
 ``ReferenceUnavailable``     501     ``reference_unavailable``
+``ExrUnavailable``           422     ``unavailable_feature`` (plus ``field``)
 ``RenderError``              500     ``render_failed`` (logged)
 anything else                500     ``internal_error`` (logged)
 ===========================  ======  ===========================================
@@ -21,15 +23,17 @@ anything else                500     ``internal_error`` (logged)
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from shadowmap.renderer import (
+    ExrUnavailable,
     LimitError,
     ReferenceUnavailable,
     RenderError,
@@ -43,15 +47,34 @@ from shadowmap.renderer import (
 log = logging.getLogger("shadowmap.app")
 
 
+class FieldError(BaseModel):
+    """One reason a request did not validate."""
+
+    loc: list[str] = Field(description="where, as path items (names and list indices)",
+                           examples=[["camera", "zfar"]])
+    pointer: str = Field(description="where, as a JSON pointer (RFC 6901) into the params",
+                         examples=["/camera/zfar"])
+    msg: str = Field(description="what is wrong", examples=["zfar must be greater than znear"])
+    type: str = Field(description="pydantic's error type; 'cross_field' for a rule between "
+                      "fields that the schema states only in words", examples=["cross_field"])
+
+
 class ErrorBody(BaseModel):
     """The body of every error response."""
 
-    error: str
-    detail: str
-    limit: str | None = None
-    errors: list[dict[str, Any]] | None = None
-    extensions: list[str] | None = None
-    field: str | None = None
+    error: str = Field(description="machine-readable code, e.g. invalid_params, "
+                       "limit_exceeded, queue_full", examples=["invalid_params"])
+    detail: str = Field(description="what went wrong, in words",
+                        examples=["camera.zfar: zfar must be greater than znear"])
+    limit: str | None = Field(default=None, description="the setting that was exceeded "
+                              "(limit_exceeded, payload_too_large)", examples=["max_pixels"])
+    errors: list[FieldError] | None = Field(default=None, description="every validation error "
+                                            "(invalid_params, invalid_request)")
+    extensions: list[str] | None = Field(default=None, description="glTF extensions the scene "
+                                         "requires and this renderer does not implement")
+    field: str | None = Field(default=None, description="the field at fault: a JSON pointer "
+                              "into the params (the first of errors), or the glTF field "
+                              "(unsupported_version)", examples=["/camera/zfar"])
 
 
 class ServiceError(Exception):
@@ -68,16 +91,19 @@ class ServiceError(Exception):
         Name of the exceeded setting, for limit errors.
     headers : dict, optional
         Extra response headers, e.g. ``Retry-After``.
+    field : str, optional
+        The field at fault, as a JSON pointer into the params (e.g. ``"/reference"``).
     """
 
     def __init__(self, status: int, error: str, detail: str, *, limit: str | None = None,
-                 headers: dict[str, str] | None = None) -> None:
+                 headers: dict[str, str] | None = None, field: str | None = None) -> None:
         super().__init__(detail)
         self.status = status
         self.error = error
         self.detail = detail
         self.limit = limit
         self.headers = headers or {}
+        self.field = field
 
 
 def error_response(status: int, error: str, detail: str, *, limit: str | None = None,
@@ -94,11 +120,33 @@ def error_response(status: int, error: str, detail: str, *, limit: str | None = 
     return JSONResponse(body, status_code=status, headers=headers)
 
 
-def _validation_errors(exc: ValidationError | RequestValidationError) -> list[dict]:
-    """Pydantic's error list without inputs or contexts (they may hold non-JSON values)."""
+#: Tags of the light union: pydantic puts the chosen one in an error's location, after the
+#: light's index; the request has no such level.
+_UNION_TAGS = frozenset({"directional", "spot", "point"})
+
+
+def _field_path(loc: tuple[Any, ...]) -> list[str]:
+    path: list[str] = []
+    for i, item in enumerate(loc):
+        if (item in _UNION_TAGS and i >= 2 and isinstance(loc[i - 1], int)
+                and loc[i - 2] == "lights"):
+            continue
+        path.append(str(item))
+    return path
+
+
+def json_pointer(path: Sequence[str]) -> str:
+    """RFC 6901 pointer of a path (``~`` and ``/`` escaped); ``""`` is the whole document."""
+    return "".join("/" + p.replace("~", "~0").replace("/", "~1") for p in path)
+
+
+def validation_errors(exc: ValidationError | RequestValidationError) -> list[dict]:
+    """Pydantic's error list without inputs or contexts (they may hold non-JSON values), each
+    with its JSON pointer into the params."""
     out = []
     for e in exc.errors():
-        out.append({"loc": [str(p) for p in e.get("loc", ())], "msg": str(e.get("msg", "")),
+        path = _field_path(tuple(e.get("loc", ())))
+        out.append({"loc": path, "pointer": json_pointer(path), "msg": str(e.get("msg", "")),
                     "type": str(e.get("type", ""))})
     return out
 
@@ -118,6 +166,9 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(ServiceError)
     async def _service(request: Request, exc: ServiceError) -> JSONResponse:
+        if exc.field is not None:
+            return error_response(exc.status, exc.error, exc.detail, limit=exc.limit,
+                                  headers=exc.headers, field=exc.field)
         return error_response(exc.status, exc.error, exc.detail, limit=exc.limit,
                               headers=exc.headers)
 
@@ -137,7 +188,12 @@ def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestError)
     async def _request(request: Request, exc: RequestError) -> JSONResponse:
         # Params that did not validate in the library keep pydantic's list of errors.
-        return error_response(422, "invalid_request", str(exc), errors=exc.errors or None)
+        errors = [{"loc": [str(p) for p in e.get("loc", [])],  # type: ignore[attr-defined]
+                   "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
+                  for e in exc.errors]
+        for e in errors:
+            e["pointer"] = json_pointer(e["loc"])
+        return error_response(422, "invalid_request", str(exc), errors=errors or None)
 
     @app.exception_handler(LimitError)
     async def _limit(request: Request, exc: LimitError) -> JSONResponse:
@@ -146,6 +202,11 @@ def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(ReferenceUnavailable)
     async def _reference(request: Request, exc: ReferenceUnavailable) -> JSONResponse:
         return error_response(501, "reference_unavailable", str(exc))
+
+    @app.exception_handler(ExrUnavailable)
+    async def _exr(request: Request, exc: ExrUnavailable) -> JSONResponse:
+        # As deps.check_service_limits refuses it before the render.
+        return error_response(422, "unavailable_feature", str(exc), field="/float_format")
 
     @app.exception_handler(RenderError)
     async def _render(request: Request, exc: RenderError) -> JSONResponse:
@@ -159,12 +220,13 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(ValidationError)
     async def _params(request: Request, exc: ValidationError) -> JSONResponse:
-        errors = _validation_errors(exc)
-        return error_response(422, "invalid_params", _summary(errors), errors=errors)
+        errors = validation_errors(exc)
+        return error_response(422, "invalid_params", _summary(errors), errors=errors,
+                              field=errors[0]["pointer"] if errors else None)
 
     @app.exception_handler(RequestValidationError)
     async def _fastapi_validation(request: Request, exc: RequestValidationError) -> JSONResponse:
-        errors = _validation_errors(exc)
+        errors = validation_errors(exc)
         return error_response(422, "invalid_request", _summary(errors), errors=errors)
 
     @app.exception_handler(StarletteHTTPException)

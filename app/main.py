@@ -15,6 +15,7 @@ The GL platform is chosen by ``PYOPENGL_PLATFORM`` (``egl`` or ``osmesa``; probe
 from __future__ import annotations
 
 import asyncio
+import copy
 import logging
 import os
 import time
@@ -31,10 +32,11 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from shadowmap import __version__
 from shadowmap.renderer import RenderParams
 
-from .deps import demo_upload
+from .deps import default_size, demo_upload, optional_features
 from .encode import RenderJSON
 from .errors import install_handlers
 from .routes import docs, health, page, render
+from .routes.render import SERVER_TIMING
 from .settings import Settings
 from .supervisor import Supervisor
 
@@ -102,8 +104,78 @@ class ServerTimingMiddleware:
         await self.app(scope, receive, send_with_timing)
 
 
+def _describe_instance(components: dict[str, Any], settings: Settings) -> None:
+    """Write this instance's limits and features into the request schema, as maximums and
+    enumerations (the library's own schema has only the renderer's structural bounds)."""
+    params = components["RenderParams"]["properties"]
+    side = min(settings.max_image_side, settings.max_pixels)
+    for name, default in zip(("width", "height"), default_size(settings), strict=True):
+        params[name]["maximum"] = min(params[name]["maximum"], side)
+        params[name]["default"] = default
+        params[name]["examples"] = [default]
+        params[name]["description"] += (f" (here: {side} pixels at most each, "
+                                        f"{settings.max_pixels} pixels in all)")
+    lights = next(s for s in params["lights"]["anyOf"] if s.get("type") == "array")
+    lights["maxItems"] = min(lights["maxItems"], settings.max_lights)
+    map_size = components["ShadowParams"]["properties"]["map_size"]
+    sizes = next(s for s in map_size["anyOf"] if s["type"] == "integer")
+    sizes["enum"] = [v for v in sizes["enum"] if v <= settings.max_map_size]
+    map_size["examples"] = [v for v in map_size["examples"] if v == "auto" or v in sizes["enum"]]
+    map_size["description"] += f" (here: at most {settings.max_map_size})"
+    # The whole-request examples at sizes this instance takes.
+    width, height = default_size(settings)
+    top = max(sizes["enum"])
+    for example in components["RenderParams"].get("examples", []):
+        example.update(width=width, height=height)
+        shadows = example.get("shadows", {})
+        if isinstance(shadows.get("map_size"), int):
+            shadows["map_size"] = min(shadows["map_size"], top)
+    for example in components["ShadowParams"].get("examples", []):
+        if isinstance(example.get("map_size"), int):
+            example["map_size"] = min(example["map_size"], top)
+    features = optional_features()
+    if not features["reference"]:
+        params["reference"]["enum"] = [False]
+        params["reference"]["description"] += " (not on this service: embreex is not installed)"
+    if not features["exr"]:
+        params["float_format"]["enum"] = [v for v in params["float_format"]["enum"]
+                                          if v != "exr"]
+        params["float_format"]["description"] += (" (exr is not on this service: OpenEXR is "
+                                                  "not installed)")
+
+
+def _instance_examples(operation: dict[str, Any], settings: Settings) -> None:
+    """The request examples of ``POST /render`` at sizes this instance accepts."""
+    width, height = default_size(settings)
+    body = operation["requestBody"]["content"]["application/json"]
+    body["example"] = {**body["example"], "width": width, "height": height}
+    for parameter in operation["parameters"]:
+        if parameter["name"] == "params":
+            media = parameter["content"]["application/json"]
+            media["example"] = {"width": max(1, width // 2), "height": max(1, height // 2)}
+
+
+_HTML = {"content": {"text/html": {"schema": {"type": "string"}}}}
+
+
+def _document_pages(paths: dict[str, Any]) -> None:
+    """The HTML pages (the web page, Swagger UI, ReDoc): plain GETs answered with HTML."""
+    pages = {"/": "the web page: pick a scene, set the light and size, render",
+             "/docs": "the API documentation (Swagger UI; its assets are served by this app)",
+             "/redoc": "the API documentation (ReDoc; its assets are served by this app)"}
+    for path, summary in pages.items():
+        paths.setdefault(path, {})["get"] = {
+            "summary": summary,
+            "operationId": "page_" + (path.strip("/") or "index"),
+            "tags": ["page"],
+            "responses": {"200": {"description": "an HTML page", **_HTML,
+                                  "headers": dict(SERVER_TIMING)}},
+        }
+
+
 def _install_openapi(app: FastAPI) -> None:
-    """Add the models that the hand-written body and response schemas refer to."""
+    """Add the models that the hand-written body and response schemas refer to, and this
+    instance's limits."""
 
     def openapi() -> dict:
         if app.openapi_schema:
@@ -112,9 +184,14 @@ def _install_openapi(app: FastAPI) -> None:
                              routes=app.routes)
         components = schema.setdefault("components", {}).setdefault("schemas", {})
         for model in (RenderParams, RenderJSON):
-            s = model.model_json_schema(ref_template="#/components/schemas/{model}")
+            # A copy: the instance's limits are written into it, and pydantic's schema may
+            # share the models' own example objects.
+            s = copy.deepcopy(model.model_json_schema(ref_template="#/components/schemas/{model}"))
             components.update(s.pop("$defs", {}))
             components[model.__name__] = s
+        _describe_instance(components, app.state.settings)
+        _instance_examples(schema["paths"]["/render"]["post"], app.state.settings)
+        _document_pages(schema.setdefault("paths", {}))
         app.openapi_schema = schema
         return schema
 

@@ -10,6 +10,7 @@ from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from shadowmap.renderer.limits import MAX_LIGHTS, Limits
+from shadowmap.renderer.params import MAX_IMAGE_SIDE
 
 
 class Settings(BaseSettings):
@@ -26,6 +27,9 @@ class Settings(BaseSettings):
         Most files a ``.zip`` upload may hold.
     max_pixels : int
         Largest ``width * height`` of a request.
+    max_image_side : int
+        Largest ``width`` and largest ``height`` of a request (the OpenAPI document gives the
+        smaller of this and ``max_pixels`` as their maximum).
     max_map_size : int
         Largest shadow-map side; ``map_size: "auto"`` is clamped to it. A point light's cube
         map at this size holds ``6 * max_map_size**2`` depth values, read back as float32.
@@ -63,6 +67,10 @@ class Settings(BaseSettings):
         Scenes the renderer keeps parsed and uploaded, by content hash (0 disables both caches).
     gpu_cache_bytes : int
         GPU memory the renderer may keep for uploaded scenes (0 disables the upload cache).
+    light_map_cache_bytes : int
+        Memory the renderer may keep for drawn shadow maps, so that a request whose light fits
+        as an earlier one's (``shadows.fit: "scene"`` over one scene, a repeated request) does
+        not draw them again (0 disables the map cache).
     startup_timeout : float
         Seconds to wait for the GL context at start-up before giving up.
     max_expected_wait : float
@@ -95,6 +103,7 @@ class Settings(BaseSettings):
     zip_expansion: float = Field(default=4.0, ge=1.0, le=1000.0)
     max_zip_entries: int = Field(default=1000, ge=1)
     max_pixels: int = Field(default=4096 * 4096, ge=1)
+    max_image_side: int = Field(default=MAX_IMAGE_SIDE, ge=1, le=MAX_IMAGE_SIDE)
     max_map_size: int = Field(default=4096, ge=16, le=16384)
     max_triangles: int = Field(default=2_000_000, ge=1)
     max_lights: int = Field(default=MAX_LIGHTS, ge=1, le=MAX_LIGHTS)
@@ -102,6 +111,7 @@ class Settings(BaseSettings):
     queue_size: int = Field(default=32, ge=1)
     scene_cache_entries: int = Field(default=4, ge=0)
     gpu_cache_bytes: int = Field(default=256 * 2**20, ge=0)
+    light_map_cache_bytes: int = Field(default=192 * 2**20, ge=0)
     startup_timeout: float = Field(default=60.0, gt=0.0)
     max_nodes: int = Field(default=Limits.max_nodes, ge=1)
     max_depth: int = Field(default=Limits.max_depth, ge=1)

@@ -8,16 +8,14 @@ not a plain relative name inside the upload.
 from __future__ import annotations
 
 import io
-import json
-import math
 import posixpath
 import zipfile
 import zlib
 from collections.abc import AsyncIterable
 from dataclasses import dataclass, field
-from typing import Any
 
 from shadowmap.renderer import RenderParams, SceneError
+from shadowmap.renderer.params import parse_json
 
 from .errors import ServiceError
 from .settings import Settings
@@ -100,42 +98,26 @@ async def read_limited(chunks: AsyncIterable[bytes], limit: int) -> bytes:
 # --------------------------------------------------------------------------------------------
 
 
-def _no_constants(name: str) -> Any:
-    raise ValueError(f"{name} is not allowed: numbers must be finite")
-
-
-def _finite_float(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):  # e.g. 1e999 overflows to inf
-        raise ValueError(f"{text} is not a finite number")
-    return value
-
-
 def parse_params(text: str | bytes) -> RenderParams:
-    """Parse the ``params`` JSON into the request model.
+    """Parse the ``params`` JSON into the request model, strictly.
 
-    Python's :mod:`json` accepts ``NaN`` and ``Infinity`` literals and turns ``1e999`` into
-    infinity; all three are refused here, before the model sees them.
+    JSON types are taken as they are (no ``0`` for a boolean, no ``false`` or ``"1"`` for a
+    number) and every light names its ``type``: the service's OpenAPI document is the contract,
+    where the library's Python API converts. ``NaN`` and ``Infinity`` are not JSON, and
+    ``1e999`` (infinity) is no finite number: all three are refused.
 
     Raises
     ------
     ServiceError
-        413 when the text is over :data:`MAX_PARAMS_BYTES`, 422 when it is not a JSON object.
+        413 when the text is over :data:`MAX_PARAMS_BYTES`.
     pydantic.ValidationError
-        When the object does not match :class:`shadowmap.renderer.RenderParams`.
+        When the text is not JSON, or not an object matching
+        :class:`shadowmap.renderer.RenderParams`.
     """
     if len(text) > MAX_PARAMS_BYTES:
         raise too_large("max_params_bytes", f"params is {len(text)} bytes, over the limit of "
                         f"{MAX_PARAMS_BYTES} bytes")
-    try:
-        obj = json.loads(text, parse_constant=_no_constants, parse_float=_finite_float)
-    except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError
-        raise ServiceError(422, "invalid_params", f"params is not valid JSON: {exc}") from None
-    if not isinstance(obj, dict):
-        raise ServiceError(422, "invalid_params", "params must be a JSON object")
-    return RenderParams.model_validate(obj)
-
-
+    return parse_json(text)
 
 
 # --------------------------------------------------------------------------------------------

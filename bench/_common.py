@@ -29,7 +29,7 @@ from shadowmap.renderer import (  # noqa: E402
 )
 from shadowmap.renderer.camera import Camera, resolve_camera  # noqa: E402
 from shadowmap.renderer.lights import Light, resolve_lights  # noqa: E402
-from shadowmap.renderer.params import LightParams  # noqa: E402
+from shadowmap.renderer.params import light_params  # noqa: E402
 from shadowmap.renderer.plan.geometry import pose_from_direction  # noqa: E402
 from shadowmap.renderer.scene import Material  # noqa: E402
 
@@ -74,8 +74,8 @@ class BenchScene:
     scene : Scene
         Already with its ground plane (requests never set ``ground``).
     lights : list of dict
-        Explicit :class:`LightParams` fields, so that a variant (e.g. without shadows) changes
-        nothing else.
+        Explicit light fields (:data:`~shadowmap.renderer.params.LightParams`), so that a
+        variant (e.g. without shadows) changes nothing else.
     camera : dict or None
         :class:`CameraParams` fields; None frames the scene automatically (or the file's camera).
     kind : {"model", "stress"}
@@ -113,7 +113,7 @@ def light_dicts(scene: Scene, lights: list[dict] | None = None) -> list[dict]:
     The file's ``KHR_lights_punctual`` lights and the default light are resolved by
     :func:`renderer.lights.resolve_lights` and written back as position + direction.
     """
-    params = None if lights is None else [LightParams.model_validate(lt) for lt in lights]
+    params = None if lights is None else [light_params(lt) for lt in lights]
     out = []
     for lt in resolve_lights(params, scene):
         d: dict = {

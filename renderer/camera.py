@@ -144,7 +144,14 @@ def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
     dist_c = float(np.linalg.norm(centre - pose[:3, 3]))
     zfar = params.zfar or (dist_c + radius) * 1.01
+    if params.zfar is None and params.znear is not None and zfar <= params.znear:
+        # A near plane beyond the scene: the fitted far plane follows it (nothing is drawn,
+        # which is what such a camera sees).
+        zfar = params.znear * 2.0
     znear = params.znear or max(dist_c - radius, zfar * 1e-4, 1e-30)
-    if znear >= zfar:
+    if params.znear is None and znear >= zfar:
+        # A far plane before the scene: likewise.
+        znear = zfar * 1e-4
+    if znear >= zfar:  # both given: CameraParams refuses this already
         raise RequestError("camera znear must be smaller than zfar")
     return Camera(pose, yfov, width, height, znear, zfar)

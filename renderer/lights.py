@@ -13,7 +13,7 @@ import numpy as np
 
 from .camera import orthonormalize_pose
 from .errors import RequestError
-from .params import LightParams
+from .params import DirectionalLight, LightParams
 from .plan.instances import scene_box  # Scene.bounds, read once per scene
 from .scene import Scene
 
@@ -75,13 +75,16 @@ def resolve_light(p: LightParams, scene: Scene, index: int = 0) -> Light:
         position, direction = pose[:3, 3], -pose[:3, 2]
     else:
         position = None if p.position is None else np.array(p.position, np.float64)
-        if p.target is not None:
+        # A point light has neither (each light type has exactly its own fields).
+        target = getattr(p, "target", None)
+        given = getattr(p, "direction", None)
+        if target is not None:
             if position is None:
                 raise RequestError(f"{what}: target needs a position")
-            direction = _unit(np.array(p.target) - position,
+            direction = _unit(np.array(target) - position,
                               f"{what} direction (position to target)")
-        elif p.direction is not None:
-            direction = _unit(np.array(p.direction), f"{what} direction")
+        elif given is not None:
+            direction = _unit(np.array(given), f"{what} direction")
         elif p.type == "point":
             direction = np.array([0.0, 0.0, -1.0])
         elif p.type == "directional" and position is not None:
@@ -103,9 +106,9 @@ def resolve_light(p: LightParams, scene: Scene, index: int = 0) -> Light:
         direction=direction,
         color=np.array(p.color, np.float64),
         intensity=p.intensity,
-        inner_cone=math.radians(p.inner_cone_deg),
-        outer_cone=math.radians(p.outer_cone_deg),
-        range=p.range,
+        inner_cone=math.radians(getattr(p, "inner_cone_deg", 0.0)),
+        outer_cone=math.radians(getattr(p, "outer_cone_deg", 30.0)),
+        range=getattr(p, "range", None),
         cast_shadows=p.cast_shadows,
     )
 
@@ -132,4 +135,8 @@ def resolve_lights(params: list[LightParams] | None, scene: Scene) -> list[Light
                 )
             )
         return out
-    return [resolve_light(LightParams(), scene)]
+    return [resolve_light(_DEFAULT_LIGHT, scene)]
+
+
+#: The light of a request that names none and a file that has none (models are not changed).
+_DEFAULT_LIGHT = DirectionalLight()

@@ -413,14 +413,67 @@ def test_json_outputs(client):
     assert "x-render-plan" in resp.headers and "server-timing" in resp.headers
 
 
+def _multipart(resp: httpx.Response) -> dict[str, tuple[dict[str, str], bytes]]:
+    boundary = resp.headers["content-type"].split("boundary=")[1].strip('"').encode()
+    parts = {}
+    for chunk in resp.content.split(b"--" + boundary)[1:-1]:
+        head, _, body = chunk[2:-2].partition(b"\r\n\r\n")  # CRLF after the boundary, before
+        headers = dict(line.split(": ", 1) for line in head.decode().split("\r\n"))
+        parts[headers["Content-Disposition"].split('name="')[1].split('"')[0]] = (headers, body)
+    return parts
+
+
+def test_exr_outputs_are_the_render_arrays(client, renderer):
+    """float_format exr: depth and visibility_<i> as float32 OpenEXR parts (multipart) and
+    base64 fields (JSON), equal to the library's arrays for the same request; PNG16 stays the
+    default."""
+    pytest.importorskip("OpenEXR")
+    from shadowmap.renderer import RenderParams, load_scene, read_exr
+    from shadowmap.renderer.demo import demo_glb
+
+    params = {**SMALL, "outputs": ["color", "visibility", "depth"], "float_format": "exr",
+              "camera": {"eye": [3.5, 3.0, 5.0], "target": [0.0, 0.4, 0.0]},
+              "lights": [{"type": "directional", "direction": [-0.6, -1.0, 0.25]},
+                         {"type": "point", "position": [1.5, 3.0, 1.5]}]}
+    expect = renderer.render(load_scene(demo_glb()), RenderParams.model_validate(params))
+    resp = post_params(client, params, accept="multipart/mixed")
+    assert resp.status_code == 200, resp.text
+    parts = _multipart(resp)
+    assert set(parts) == {"color", "visibility_0", "visibility_1", "depth"}
+    assert parts["color"][0]["Content-Type"] == "image/png"
+    headers, body = parts["depth"]
+    assert headers["Content-Type"] == "image/x-exr" and 'filename="depth.exr"' in (
+        headers["Content-Disposition"])
+    depth = read_exr(body)[0]["Z"]
+    assert depth.dtype == np.float32 and depth.shape == (120, 160)
+    np.testing.assert_array_equal(depth, expect.depth)  # NaN where no geometry, on both sides
+    for i in range(2):
+        headers, body = parts[f"visibility_{i}"]
+        assert headers["Content-Type"] == "image/x-exr" and headers["X-Light"] == str(i)
+        np.testing.assert_array_equal(read_exr(body)[0]["Y"], expect.visibility[..., i])
+    body = post_params(client, params, accept="application/json").json()
+    out = body["outputs"]["depth"]
+    assert out["media_type"] == "image/x-exr" and out["bit_depth"] == 32 and "png" not in out
+    np.testing.assert_array_equal(read_exr(base64.b64decode(out["exr"]))[0]["Z"], expect.depth)
+    # The same request as 16-bit PNG agrees within its quantisation.
+    png = post_params(client, {**params, "float_format": "png16"}, accept="application/json")
+    d16 = png.json()["outputs"]["depth"]
+    assert d16["media_type"] == "image/png" and d16["bit_depth"] == 16
+    v = decode_png(base64.b64decode(d16["png"])).astype(np.float64)
+    finite = np.isfinite(expect.depth)
+    assert np.array_equal(v < 65535, finite)
+    decoded = d16["near"] + v[finite] / 65534 * (d16["far"] - d16["near"])
+    assert np.abs(decoded - expect.depth[finite]).max() <= (d16["far"] - d16["near"]) / 65534
+
+
 def test_warnings_in_the_header_of_every_format_and_in_json(client):
-    # max_map_size over this server's limit (2048) is clamped; a range means nothing to a
-    # directional light: both rendered as before, and both said.
-    params = {**SMALL, "shadows": {"max_map_size": 4096},
-              "lights": [{"type": "directional", "direction": [-0.5, -1.0, 0.2], "range": 3.0}]}
+    # max_map_size over this server's limit (2048) is clamped; a PCF kernel means nothing to
+    # the hard filter: both rendered as before, and both said.
+    params = {**SMALL, "shadows": {"max_map_size": 4096, "filter": "hard", "pcf_kernel": 5},
+              "lights": [{"type": "directional", "direction": [-0.5, -1.0, 0.2]}]}
     expected = [
         "shadows.max_map_size 4096 is over the limit of 2048: automatic map sizes stop at 2048",
-        "light 0: a directional light has no use for range: ignored",
+        "shadows.pcf_kernel 5 is not used: the filter is 'hard'",
     ]
     for accept in ("image/png", "multipart/mixed", "application/json"):
         resp = post_params(client, params, accept=accept)
@@ -603,11 +656,17 @@ BAD_PARAMS = {
     "wrong type": ('{"width": "wide"}', "invalid_params"),
     "out of range": ('{"width": 0}', "invalid_params"),
     "bad output": ('{"outputs": ["normals"]}', "invalid_params"),
-    "zero light direction": ('{"lights": [{"direction": [0, 0, 0]}]}', "invalid_request"),
+    # Rules between fields (and what needs no scene) are the request model's: 422 naming the
+    # field by JSON pointer.
+    "zero light direction": ('{"lights": [{"type": "directional", "direction": [0, 0, 0]}]}',
+                             "invalid_params"),
     "camera eye at target": ('{"camera": {"eye": [1, 1, 1], "target": [1, 1, 1]}}',
-                             "invalid_request"),
+                             "invalid_params"),
     "singular camera pose": ('{"camera": {"pose": [[0,0,0,0],[0,0,0,0],[0,0,0,0],[0,0,0,1]]}}',
-                             "invalid_request"),
+                             "invalid_params"),
+    "light without a type": ('{"lights": [{"direction": [0, -1, 0]}]}', "invalid_params"),
+    "zero for a boolean": ('{"ground": 0}', "invalid_params"),
+    "false for a number": ('{"specular": false}', "invalid_params"),
 }
 
 
@@ -635,7 +694,7 @@ def test_bad_params_in_query_and_form(client):
 LIMITS = {
     "max_pixels": {"width": 2048, "height": 1024},
     "max_map_size": {**SMALL, "shadows": {"map_size": 4096, "max_map_size": 4096}},
-    "max_lights": {**SMALL, "lights": [{"direction": [0, -1, 0]}] * 5},
+    "max_lights": {**SMALL, "lights": [{"type": "directional", "direction": [0, -1, 0]}] * 5},
 }
 
 

@@ -549,7 +549,8 @@ def test_render_with_bad_params_is_a_request_error_with_pydantics_messages(rende
     with pytest.raises(RequestError) as info:
         renderer.render(scene, {"width": 0, "shadows": {"map_size": 3}, "nope": 1})
     err = info.value
-    assert {tuple(e["loc"]) for e in err.errors} == {("width",), ("shadows",), ("nope",)}
+    assert {tuple(e["loc"]) for e in err.errors} == {("width",), ("shadows", "map_size"),
+                                                     ("nope",)}
     assert all(e["msg"] and e["type"] for e in err.errors)
     assert "width: Input should be greater than or equal to 1" in str(err)
     for bad in ([1, 2], "params", 7):

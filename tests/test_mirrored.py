@@ -205,11 +205,11 @@ def test_two_lights_of_different_kinds(renderer, scenes):
 def test_reference_traces_mirrored_instances_like_their_baked_twin(renderer, scenes):
     from shadowmap.renderer.camera import resolve_camera
     from shadowmap.renderer.lights import resolve_lights
-    from shadowmap.renderer.params import LightParams
+    from shadowmap.renderer.params import light_params
     from shadowmap.renderer.reference import trace_reference
 
     mirrored, baked = scenes["nested_mirrors"]
-    params = [LightParams(**LIGHTS[k]) for k in ("directional", "spot", "point")]
+    params = [light_params(LIGHTS[k]) for k in ("directional", "spot", "point")]
     camera = resolve_camera(RenderParams(camera=CAMERA).camera, baked, 320, 240)
     a = trace_reference(baked, camera, resolve_lights(params, baked))
     b = trace_reference(mirrored, camera, resolve_lights(params, mirrored))

@@ -171,7 +171,7 @@ def test_camera_looking_straight_down(renderer, scene):
 ])
 def test_meaningless_poses_are_clear_errors(renderer, scene, request_):
     with pytest.raises(RequestError):
-        renderer.render(scene, RenderParams(**request_))
+        renderer.render(scene, request_)
 
 
 def test_scaled_and_sheared_poses_are_made_rigid(renderer, scene):

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from shadowmap.renderer import Limits, RenderParams
 from shadowmap.renderer import testing as T
@@ -50,14 +51,11 @@ def test_explicit_max_map_size_over_the_limit_is_reported():
 def test_unused_settings_are_reported():
     (w,) = warnings_of(shadows={"filter": "hard", "pcf_kernel": 5})
     assert "pcf_kernel 5" in w
-    found = warnings_of(lights=[
-        {"type": "point", "position": [0, 3, 0], "direction": [0, -1, 0], "outer_cone_deg": 20},
-        {"type": "directional", "direction": [0, -1, 0], "range": 4.0},
-    ])
-    assert found == [
-        "light 0: a point light has no use for direction, outer_cone_deg: ignored",
-        "light 1: a directional light has no use for range: ignored",
-    ]
+    # A light has only its own fields: one the type has no use for is refused, not ignored.
+    for light in ({"type": "point", "position": [0, 3, 0], "direction": [0, -1, 0]},
+                  {"type": "directional", "direction": [0, -1, 0], "range": 4.0}):
+        with pytest.raises(ValidationError):
+            warnings_of(lights=[light])
 
 
 def test_poses_made_rigid_are_reported():
@@ -66,13 +64,14 @@ def test_poses_made_rigid_are_reported():
         "camera: the pose has scale or shear: its nearest rotation is used"]
     assert warnings_of(lights=[{"pose": scaled}]) == [
         "light 0: the pose has scale or shear: its nearest rotation is used"]
-    # Rigid poses, and poses the render will refuse (mirrored), are no warning.
+    # Rigid poses are no warning; mirrored ones are refused by the request model.
     rigid = np.eye(4)
     rigid[:3, :3] = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]
     rigid[:3, 3] = [5, 1, 0]
     assert warnings_of(camera={"pose": rigid.tolist()}) == []
     mirrored = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, 5], [0, 0, 0, 1]]
-    assert warnings_of(camera={"pose": mirrored}) == []
+    with pytest.raises(ValidationError):
+        warnings_of(camera={"pose": mirrored})
 
 
 def test_camera_up_along_the_view_is_reported():
@@ -151,11 +150,21 @@ def test_json_body_has_the_warnings():
 # -- renders (GL) ----------------------------------------------------------------------------
 
 
-def _scene_with_warnings(*warnings: str):
-    scene = T.caster_on_ground()
+def _scene_with_warnings(*warnings: str, floor: bool = True):
+    scene = T.caster_on_ground() if floor else _box_scene()
     scene.warnings = list(warnings)  # what a loader found
     scene.key += ":with-warnings"
     return scene
+
+
+def _box_scene():
+    import trimesh
+
+    from shadowmap.renderer.scene import scene_from_meshes
+
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    box.apply_translation((0.0, 0.5, 0.0))
+    return scene_from_meshes([box], ["box"])
 
 
 @pytest.mark.gl
@@ -181,8 +190,9 @@ def test_render_lists_the_scenes_warnings_then_its_own(renderer):
 
 @pytest.mark.gl
 def test_warnings_survive_the_ground_and_are_listed_once(renderer):
+    # A box alone: no floor of its own, so ground=True adds the plane.
     scene = _scene_with_warnings("mesh 2: primitive mode LINES is not drawn", "same twice",
-                                 "same twice")
+                                 "same twice", floor=False)
     result = renderer.render(scene, RenderParams(width=96, height=64, camera=LOOK, ground=True))
     assert result.warnings == ["mesh 2: primitive mode LINES is not drawn", "same twice"]
 

@@ -55,7 +55,9 @@ class Version(BaseModel):
 router = APIRouter(tags=["service"])
 
 
-@router.get("/healthz", response_model=Health, responses={503: {"model": Health}})
+@router.get("/healthz", response_model=Health, operation_id="healthz",
+            responses={503: {"model": Health, "description": "no render worker can run (status "
+                             "unavailable)"}})
 async def healthz(worker: WorkerDep) -> JSONResponse:
     """Liveness: renders are accepted. Answers at once even while renders are queued."""
     state = WorkerState(**worker.snapshot())
@@ -63,7 +65,7 @@ async def healthz(worker: WorkerDep) -> JSONResponse:
     return JSONResponse(body.model_dump(), status_code=200 if state.alive else 503)
 
 
-@router.get("/version", response_model=Version)
+@router.get("/version", response_model=Version, operation_id="version")
 async def version() -> Version:
     """The service's version."""
     return Version(name=DISTRIBUTION, version=__version__,

@@ -31,6 +31,7 @@ def index() -> HTMLResponse:
 @router.get(
     "/demo.glb",
     response_class=Response,
+    operation_id="demo_scene",
     responses={200: {"content": {"model/gltf-binary": {"schema": {"type": "string",
                                                                    "format": "binary"}}},
                      "description": "the demo scene rendered when a request has no scene"}},
