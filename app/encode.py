@@ -5,9 +5,10 @@ Image outputs and how they are stored as PNG:
 ``color``
     8-bit RGB (RGBA with ``alpha: true``), as rendered.
 ``light_depth_<i>``
-    8-bit grayscale of light ``i``'s shadow map: linear depth over the light's [near, far], near
-    = black, no caster = white (255). Cube maps (point lights) are laid out 3 x 2 faces
-    (+X -X +Y / -Y +Z -Z). ``near`` and ``far`` are given with the image.
+    8-bit grayscale of light ``i``'s shadow map, stretched over the depths drawn into it: the
+    nearest caster = black, the farthest = 254, no caster = white (255). ``shown_near`` and
+    ``shown_far`` (world units) are that stretched range, ``near`` and ``far`` the map's own
+    (fitted) range. Cube maps (point lights) are laid out 3 x 2 faces (+X -X +Y / -Y +Z -Z).
 ``visibility_<i>``
     16-bit grayscale of light ``i``'s shadow factor: ``round(v * 65535)`` with v = 1 lit and
     v = 0 shadowed (fractions from PCF); pixels with no geometry are 0, like full shadow.
@@ -18,8 +19,12 @@ Image outputs and how they are stored as PNG:
     ``far`` (world units) are given with the image; decode with
     ``d = near + v / 65534 * (far - near)`` for ``v < 65535``.
 
+With ``float_format: "exr"``, ``depth`` and ``visibility_<i>`` are OpenEXR files instead
+(``image/x-exr``, 32-bit float, the raw values: see :mod:`shadowmap.renderer.exr`).
+
 With ``multipart/mixed`` the extra values travel as part headers (``X-Depth-Near``,
-``X-Depth-Far``, ``X-Light``); with JSON they are fields beside the base64 PNG.
+``X-Depth-Far``, ``X-Shown-Near``, ``X-Shown-Far``, ``X-Light``); with JSON they are fields
+beside the base64 file (``png``, or ``exr``).
 """
 
 from __future__ import annotations
@@ -28,10 +33,8 @@ import base64
 import json
 import math
 import secrets
-import struct
 import time
-import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,23 +43,19 @@ from pydantic import BaseModel, Field
 from starlette.responses import Response
 
 from shadowmap.renderer import RenderResult
+from shadowmap.renderer.encodings import drawn_range
+from shadowmap.renderer.exr import DEPTH_CHANNEL, MEDIA_EXR, VISIBILITY_CHANNEL, exr_bytes
 
-PNG_COMPRESS_LEVEL = 1  # zlib level: the time of higher levels buys little size on renders
+# The PNG writer is the library's (``shadowmap batch`` writes the same files), re-exported here.
+from shadowmap.renderer.png import (  # noqa: F401  (re-exported)
+    PNG_COMPRESS_LEVEL,
+    PNG_DEFLATE,
+    depth_u16,
+    png_bytes,
+    visibility_u16,
+)
+from shadowmap.renderer.render import LightDepth
 
-
-def _deflate() -> tuple[str, Callable[[bytes], bytes]]:
-    """The deflate compressor for PNG data: ISA-L's zlib-compatible one when installed (the
-    ``server`` extra has it), else zlib; both at level 1 and both writing zlib streams, so any
-    PNG reader decodes either."""
-    try:
-        from isal import isal_zlib
-    except ImportError:
-        return "zlib", lambda data: zlib.compress(data, PNG_COMPRESS_LEVEL)
-    return "isal", lambda data: isal_zlib.compress(data, PNG_COMPRESS_LEVEL)
-
-
-#: Which compressor :func:`png_bytes` uses ("isal" or "zlib"), and the function itself.
-PNG_DEFLATE, _compress = _deflate()
 MEDIA_PNG = "image/png"
 MEDIA_MULTIPART = "multipart/mixed"
 MEDIA_JSON = "application/json"
@@ -65,27 +64,44 @@ FORMATS = (MEDIA_PNG, MEDIA_MULTIPART, MEDIA_JSON)
 
 @dataclass
 class EncodedImage:
-    """One output as PNG bytes, with what is needed to interpret it."""
+    """One output as a PNG (or, for float outputs with ``float_format: "exr"``, an OpenEXR)
+    file, with what is needed to interpret it."""
 
     name: str
-    png: bytes
+    data: bytes
     width: int
     height: int
     bit_depth: int
     meta: dict[str, Any] = field(default_factory=dict)
+    media_type: str = "image/png"
+
+    @property
+    def suffix(self) -> str:
+        """The file name's extension: ``.png`` or ``.exr``."""
+        return ".exr" if self.media_type == MEDIA_EXR else ".png"
 
 
 class ImageJSON(BaseModel):
     """One image output in a JSON response."""
 
-    png: str = Field(description="the PNG file, base64-encoded")
+    png: str | None = Field(default=None, description="the PNG file, base64-encoded")
+    exr: str | None = Field(
+        default=None, description="float_format 'exr' (depth, visibility_<i>): the OpenEXR file, "
+        "base64-encoded (float32 channel Z or Y, NaN where no geometry)")
+    media_type: str = Field(default="image/png", description="image/png or image/x-exr")
     width: int
     height: int
-    bit_depth: int = Field(description="8 or 16 bits per channel")
+    bit_depth: int = Field(description="8 or 16 bits per channel (PNG), 32 (EXR float)")
     light: int | None = Field(default=None, description="light index (light_depth, visibility)")
     kind: str | None = Field(default=None, description="light_depth: ortho, perspective or cube")
     near: float | None = Field(default=None, description="depth range start (world units)")
     far: float | None = Field(default=None, description="depth range end (world units)")
+    shown_near: float | None = Field(
+        default=None, description="light_depth: the nearest depth drawn into the map (world "
+        "units), black in the picture")
+    shown_far: float | None = Field(
+        default=None, description="light_depth: the farthest depth drawn into the map (world "
+        "units), level 254 in the picture")
 
 
 class RenderJSON(BaseModel):
@@ -163,66 +179,22 @@ def choose_format(accept: str | None, outputs: Sequence[str]) -> str | None:
 # --------------------------------------------------------------------------------------------
 
 
-_PNG_COLOUR_TYPE = {1: 0, 3: 2, 4: 6}  # grey, RGB, RGBA
+def _shown_range(ld: LightDepth) -> dict[str, float]:
+    """World distances the light-depth picture is stretched over (:func:`debug_image`): the
+    nearest and farthest depth drawn; cascades, each stretched alone, give the extremes."""
+    maps = ld.depth if ld.ranges else [ld.depth]
+    ranges = ld.ranges or [(ld.near, ld.far)]
+    shown = []
+    for t, (near, far) in zip(maps, ranges, strict=True):
+        span = drawn_range(t)
+        if span is not None:
+            shown += [near + span[0] * (far - near), near + span[1] * (far - near)]
+    return {"shown_near": min(shown), "shown_far": max(shown)} if shown else {}
 
 
-def _png_chunk(kind: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-
-def png_bytes(image: np.ndarray) -> bytes:
-    """PNG of a uint8 (H, W), (H, W, 3), (H, W, 4) or uint16 (H, W) array.
-
-    Written directly (no per-row filter, deflate level 1, with :data:`PNG_DEFLATE`): for a
-    rendered frame this takes about a third of the time of an encoder that tries every row
-    filter with zlib, for files about a third larger; ISA-L's deflate takes about a quarter of
-    zlib's time (``bench/png_encode.py``).
-    """
-    a = np.asarray(image)
-    if a.dtype not in (np.uint8, np.uint16) or a.ndim not in (2, 3):
-        raise ValueError(f"cannot write a PNG of a {a.dtype} array of shape {a.shape}")
-    h, w = a.shape[:2]
-    channels = 1 if a.ndim == 2 else a.shape[2]
-    if channels not in _PNG_COLOUR_TYPE:
-        raise ValueError(f"cannot write a PNG with {channels} channels")
-    rows = np.ascontiguousarray(a, dtype=">u2" if a.dtype == np.uint16 else np.uint8)
-    rows = rows.reshape(h, -1).view(np.uint8)
-    raw = np.zeros((h, rows.shape[1] + 1), np.uint8)  # filter byte 0 (none) per row
-    raw[:, 1:] = rows
-    header = struct.pack(">IIBBBBB", w, h, 8 * a.dtype.itemsize, _PNG_COLOUR_TYPE[channels],
-                         0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header)
-            + _png_chunk(b"IDAT", _compress(raw.tobytes()))
-            + _png_chunk(b"IEND", b""))
-
-
-def visibility_u16(v: np.ndarray) -> np.ndarray:
-    """Shadow factor in [0, 1] -> uint16 ``round(v * 65535)``; NaN (no geometry) -> 0."""
-    v = np.nan_to_num(v.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0)
-    return np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16)
-
-
-def depth_u16(d: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
-    """Camera depth -> uint16 normalised over its finite range; NaN (no geometry) -> 65535.
-
-    Returns
-    -------
-    image : ndarray, shape (H, W), uint16
-    near, far : float or None
-        The depth range mapped to 0 and 65534 (None when the image has no geometry).
-    """
-    finite = np.isfinite(d)
-    out = np.full(d.shape, 65535, np.uint16)
-    if not finite.any():
-        return out, None, None
-    near, far = float(d[finite].min()), float(d[finite].max())
-    span = far - near if far > near else 1.0
-    out[finite] = np.rint((d[finite].astype(np.float64) - near) / span * 65534.0).astype(np.uint16)
-    return out, near, far
-
-
-def encode_outputs(result: RenderResult, names: Sequence[str]) -> list[EncodedImage]:
-    """Encode the requested outputs of a render as PNG images.
+def encode_outputs(result: RenderResult, names: Sequence[str],
+                   float_format: str = "png16") -> list[EncodedImage]:
+    """Encode the requested outputs of a render as PNG (or OpenEXR) images.
 
     Parameters
     ----------
@@ -230,7 +202,16 @@ def encode_outputs(result: RenderResult, names: Sequence[str]) -> list[EncodedIm
     names : list of str
         Output kinds to encode (``color``, ``light_depth``, ``visibility``, ``depth``); kinds the
         result does not hold are skipped.
+    float_format : {"png16", "exr"}
+        How ``depth`` and ``visibility_<i>`` are written: 16-bit PNG, or raw float32 OpenEXR
+        (:mod:`shadowmap.renderer.exr`).
+
+    Raises
+    ------
+    ExrUnavailable
+        ``exr`` without the OpenEXR package.
     """
+    exr = float_format == "exr"
     images: list[EncodedImage] = []
     if "color" in names and result.color is not None:
         c = result.color
@@ -240,17 +221,28 @@ def encode_outputs(result: RenderResult, names: Sequence[str]) -> list[EncodedIm
             img = ld.image
             images.append(EncodedImage(
                 f"light_depth_{ld.light}", png_bytes(img), img.shape[1], img.shape[0], 8,
-                {"light": ld.light, "kind": ld.kind, "near": float(ld.near), "far": float(ld.far)},
+                {"light": ld.light, "kind": ld.kind, "near": float(ld.near), "far": float(ld.far),
+                 **_shown_range(ld)},
             ))
     if "visibility" in names and result.visibility is not None:
         vis = result.visibility
         for i in range(vis.shape[2]):
+            if exr:
+                images.append(EncodedImage(
+                    f"visibility_{i}", exr_bytes({VISIBILITY_CHANNEL: vis[..., i]}, {"light": i}),
+                    vis.shape[1], vis.shape[0], 32, {"light": i}, MEDIA_EXR))
+                continue
             images.append(EncodedImage(f"visibility_{i}", png_bytes(visibility_u16(vis[..., i])),
                                        vis.shape[1], vis.shape[0], 16, {"light": i}))
     if "depth" in names and result.depth is not None:
-        img, near, far = depth_u16(result.depth)
-        images.append(EncodedImage("depth", png_bytes(img), img.shape[1], img.shape[0], 16,
-                                   {"near": near, "far": far}))
+        d = result.depth
+        if exr:
+            images.append(EncodedImage("depth", exr_bytes({DEPTH_CHANNEL: d}), d.shape[1],
+                                       d.shape[0], 32, {}, MEDIA_EXR))
+        else:
+            img, near, far = depth_u16(d)
+            images.append(EncodedImage("depth", png_bytes(img), img.shape[1], img.shape[0], 16,
+                                       {"near": near, "far": far}))
     return images
 
 
@@ -275,7 +267,7 @@ def jsonable(obj: Any) -> Any:
 
 
 def multipart_body(images: list[EncodedImage]) -> tuple[bytes, str]:
-    """A ``multipart/mixed`` body with one PNG part per image.
+    """A ``multipart/mixed`` body with one PNG (or EXR) part per image.
 
     Returns
     -------
@@ -287,28 +279,32 @@ def multipart_body(images: list[EncodedImage]) -> tuple[bytes, str]:
     out = bytearray()
     for im in images:
         headers = [
-            f"Content-Type: {MEDIA_PNG}",
-            f'Content-Disposition: inline; name="{im.name}"; filename="{im.name}.png"',
-            f"Content-Length: {len(im.png)}",
+            f"Content-Type: {im.media_type}",
+            f'Content-Disposition: inline; name="{im.name}"; filename="{im.name}{im.suffix}"',
+            f"Content-Length: {len(im.data)}",
         ]
         if "light" in im.meta:
             headers.append(f"X-Light: {im.meta['light']}")
         for key in ("near", "far"):
             if im.meta.get(key) is not None:
                 headers.append(f"X-Depth-{key.capitalize()}: {im.meta[key]!r}")
+            if im.meta.get("shown_" + key) is not None:
+                headers.append(f"X-Shown-{key.capitalize()}: {im.meta['shown_' + key]!r}")
         out += f"--{boundary}\r\n".encode() + "\r\n".join(headers).encode() + b"\r\n\r\n"
-        out += im.png + b"\r\n"
+        out += im.data + b"\r\n"
     out += f"--{boundary}--\r\n".encode()
     return bytes(out), f'{MEDIA_MULTIPART}; boundary="{boundary}"'
 
 
 def json_body(images: list[EncodedImage], report: dict[str, Any],
               timings: dict[str, float]) -> bytes:
-    """The JSON response: base64 PNGs plus timings, plan, GL info, warnings and metrics."""
+    """The JSON response: base64 PNGs (``png``) or EXRs (``exr``) plus timings, plan, GL info,
+    warnings and metrics."""
     outputs = {}
     for im in images:
-        entry = {"png": base64.b64encode(im.png).decode("ascii"), "width": im.width,
-                 "height": im.height, "bit_depth": im.bit_depth}
+        entry = {im.suffix[1:]: base64.b64encode(im.data).decode("ascii"),
+                 "media_type": im.media_type, "width": im.width, "height": im.height,
+                 "bit_depth": im.bit_depth}
         entry.update(im.meta)
         outputs[im.name] = entry
     body = {"outputs": outputs, "timings": timings, "plan": report.get("plan", {}),
@@ -389,7 +385,8 @@ RENDER_STAGES = ("upload", "plan", "light", "camera", "readback", "reference")
 
 
 def build_response(media: str, result: RenderResult, outputs: Sequence[str],
-                   before: dict[str, float], notes: dict[str, str], started: float) -> Response:
+                   before: dict[str, float], notes: dict[str, str], started: float,
+                   float_format: str = "png16") -> Response:
     """The HTTP response of a finished render, with ``Server-Timing``, ``X-Render-Plan`` and
     ``X-Render-Warnings``.
 
@@ -406,9 +403,11 @@ def build_response(media: str, result: RenderResult, outputs: Sequence[str],
         ``desc`` of some stages, e.g. ``{"parse": "scene cache hit"}``.
     started : float
         ``time.perf_counter()`` at the start of the request.
+    float_format : {"png16", "exr"}
+        The request's ``float_format`` (see :func:`encode_outputs`).
     """
     t = time.perf_counter()
-    images = encode_outputs(result, ["color"] if media == MEDIA_PNG else outputs)
+    images = encode_outputs(result, ["color"] if media == MEDIA_PNG else outputs, float_format)
     stages = dict(before)
     stages["parse"] = stages.get("parse", 0.0) + result.timings.get("load", 0.0)
     for name in RENDER_STAGES:
@@ -416,7 +415,7 @@ def build_response(media: str, result: RenderResult, outputs: Sequence[str],
             stages[name] = result.timings[name]
     stages["encode"] = time.perf_counter() - t
     if media == MEDIA_PNG:
-        body, content_type = images[0].png, MEDIA_PNG
+        body, content_type = images[0].data, MEDIA_PNG
     elif media == MEDIA_MULTIPART:
         body, content_type = multipart_body(images)
     else:

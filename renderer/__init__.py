@@ -8,11 +8,13 @@ platform (EGL, else OSMesa; ``PYOPENGL_PLATFORM`` forces one) is selected when a
 Modules: ``params`` (the request model), ``scene`` (glTF loading), ``limits``, ``cache``,
 ``camera`` and ``lights`` (resolving a request), ``plan`` (the render plan, no GL), ``gl``
 (context, programs, resources), ``passes`` (light pass, camera pass), ``render`` (the
-:class:`Renderer`), ``reference`` and ``metrics`` (ray-traced truth and the error against it),
-``testing`` (scene builders and measurement for tests and benchmarks).
+:class:`Renderer`), ``exr`` (depth and visibility as OpenEXR), ``reference`` and ``metrics``
+(ray-traced truth and the error against it), ``testing`` (scene builders and measurement for
+tests and benchmarks).
 """
 
 from .errors import (
+    ExrUnavailable,
     LimitError,
     ReferenceUnavailable,
     RenderError,
@@ -23,12 +25,14 @@ from .errors import (
     UnsupportedExtension,
     UnsupportedVersion,
 )
+from .exr import read_exr, write_exr
 from .limits import Limits
 from .params import RenderParams
 from .render import Renderer, RenderResult
 from .scene import Scene, load_scene, scene_from_meshes, scene_from_trimesh
 
 __all__ = [
+    "ExrUnavailable",
     "LimitError",
     "Limits",
     "ReferenceUnavailable",
@@ -44,6 +48,8 @@ __all__ = [
     "UnsupportedExtension",
     "UnsupportedVersion",
     "load_scene",
+    "read_exr",
     "scene_from_meshes",
     "scene_from_trimesh",
+    "write_exr",
 ]

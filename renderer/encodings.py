@@ -67,20 +67,45 @@ def decode(rgba: np.ndarray, encoding: str) -> np.ndarray:
     raise ValueError(f"{encoding!r} has no colour packing")
 
 
+def drawn_range(t: np.ndarray) -> tuple[float, float] | None:
+    """The smallest and largest depth drawn into a decoded map (None when nothing was drawn).
+
+    Parameters
+    ----------
+    t : ndarray
+        Decoded linear depth, NaN where nothing was drawn.
+    """
+    finite = np.isfinite(t)
+    if not finite.any():
+        return None
+    drawn = t[finite]
+    return float(drawn.min()), float(drawn.max())
+
+
 def debug_image(t: np.ndarray) -> np.ndarray:
-    """8-bit grayscale picture of a decoded map: near = dark, empty (t >= 1) = white.
+    """8-bit grayscale picture of a decoded map, stretched over the depths drawn into it: the
+    nearest caster = black (0), the farthest = 254, empty = white (255).
+
+    A map's range is fitted to every receiver its light reaches, which can be much deeper than
+    the casters (a ground plane, a far wall): over the fitted range the casters would all be a
+    few levels of near-black. The drawn range is :func:`drawn_range` (in units of the map's
+    range, so ``near + t * (far - near)`` in scene units).
 
     Parameters
     ----------
     t : ndarray, shape (S, S) or (6, S, S)
         Decoded linear depth, NaN where nothing was drawn. Cube maps are laid out 3 x 2
-        (+X -X +Y / -Y +Z -Z).
+        (+X -X +Y / -Y +Z -Z) and stretched over the drawn depths of all six faces.
 
     Returns
     -------
     ndarray, shape (S, S) or (2S, 3S), uint8
     """
-    img = np.where(np.isfinite(t), np.clip(t, 0.0, 1.0) * 254.0, 255.0)
+    span = drawn_range(t)
+    lo, hi = span if span is not None else (0.0, 1.0)
+    scale = 254.0 / (hi - lo) if hi > lo else 0.0  # one depth drawn: all black
+    with np.errstate(invalid="ignore"):
+        img = np.where(np.isfinite(t), np.clip((t - lo) * scale, 0.0, 254.0), 255.0)
     img = np.rint(img).astype(np.uint8)
     if img.ndim == 3:
         rows = [np.concatenate(list(img[r * 3 : r * 3 + 3]), axis=1) for r in range(2)]

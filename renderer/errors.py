@@ -97,4 +97,10 @@ class ShaderError(RenderError):
 
 
 class ReferenceUnavailable(ShadowMapError):
-    """The ray-traced reference needs ``embreex`` (``pip install shadowmap-service[reference]``)."""
+    """The ray-traced reference needs ``embreex``, its error metrics ``scipy`` (both in the
+    ``reference`` extra: ``pip install shadowmap-service[reference]``)."""
+
+
+class ExrUnavailable(ShadowMapError):
+    """``float_format: "exr"`` needs the ``OpenEXR`` package (``pip install OpenEXR``; it is in
+    the ``server`` extra)."""

@@ -12,8 +12,8 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import ndimage
 
+from .errors import ReferenceUnavailable
 from .reference import ReferenceResult
 
 
@@ -81,6 +81,14 @@ def _edge_distance(a: np.ndarray, b: np.ndarray) -> float:
         return math.nan
     if na == 0 or nb == 0:
         return float(math.hypot(*a.shape))
+    # scipy comes with the reference extra, not with the service, which never needs metrics.
+    try:
+        from scipy import ndimage
+    except ImportError as exc:
+        raise ReferenceUnavailable(
+            "the shadow metrics need scipy: pip install 'shadowmap-service[reference]' "
+            f"(or pip install scipy); import failed with: {exc}"
+        ) from None
     # distance_transform_edt measures the distance to the nearest zero, i.e. to an edge pixel.
     to_b = ndimage.distance_transform_edt(~b)
     to_a = ndimage.distance_transform_edt(~a)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -93,6 +94,35 @@ def test_bad_input_exits_nonzero_with_one_line(models, tmp_path, setup, args, me
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], proc.stderr
+
+
+def test_help_example_json_is_compact_and_is_the_example():
+    from shadowmap.renderer.params import EXAMPLE_PARAMS
+
+    proc = shadowmap("render", "--help")
+    assert proc.returncode == 0
+    text = proc.stdout.split("for example:", 1)[1].lstrip("\n")
+    example = text[:text.index("\n}\n") + 2]
+    assert json.loads(example) == EXAMPLE_PARAMS
+    lines = example.splitlines()
+    # One field per line at most, never one number per line (json.dumps(indent=2) gave 50).
+    assert len(lines) <= len(EXAMPLE_PARAMS) + 2, example
+    assert not any(re.fullmatch(r"\s*-?[\d.]+,?", line) for line in lines), example
+    assert max(len(line) for line in lines) <= 100
+
+
+@pytest.mark.parametrize("width", [20, 40, 92])
+def test_compact_json_round_trips(width):
+    from shadowmap.cli import compact_json
+
+    value = {"pose": [[1, 0, 0, 0.5], [0, 1, 0, -2.25], [0, 0, 1, 3], [0, 0, 0, 1]],
+             "many": list(range(60)), "words": ["a" * 30] * 5, "empty": {}, "none": [],
+             "nested": [{"k": [{"x": None, "y": True}]}], "text": "é \" \\ x"}
+    text = compact_json(value, width=width)
+    assert json.loads(text) == value
+    # Numbers fill their lines: a lone one only as the last of a long list.
+    lone = [line for line in text.splitlines() if re.fullmatch(r"\s*-?[\d.]+,?", line)]
+    assert len(lone) <= 1 and not any(line.endswith(",") for line in lone), text
 
 
 def test_version_and_module_entry_point():

@@ -10,6 +10,8 @@ from __future__ import annotations
 import base64
 import contextlib
 import io
+import json
+import math
 import os
 import shutil
 import socket
@@ -87,7 +89,9 @@ def server_url():
 
 def run_browser(url: str, *args: str) -> subprocess.CompletedProcess:
     """Headless Chromium on ``url`` with a throw-away profile and no background traffic."""
-    with tempfile.TemporaryDirectory(prefix="shadowmap-chromium-") as profile:
+    with tempfile.TemporaryDirectory(prefix="shadowmap-chromium-",
+                                     ignore_cleanup_errors=True) as profile:
+        # (Chromium's helper processes may still write to the profile as it is removed.)
         cmd = [chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
                "--disable-background-networking", "--disable-component-update", "--disable-sync",
                "--disable-extensions", "--hide-scrollbars", f"--user-data-dir={profile}",
@@ -144,6 +148,203 @@ def test_page_renders_on_load(server_url, debug):
     assert page.text["debug-cap"].startswith(debug)
     timings = dom.split('id="timings"', 1)[1].split("</table>", 1)[0]
     assert "readback" in timings and "encode" in timings
+    if debug == "light_depth":
+        # Stretched over the drawn depths, not the fitted range: from black to near-white, and
+        # not a nearly black picture; the caption says so.
+        drawn = shown[shown < 255]
+        assert drawn.size > 0.05 * shown.size
+        assert drawn.min() <= 2 and drawn.max() >= 250 and drawn.mean() > 40, (
+            drawn.min(), drawn.max(), drawn.mean())
+        assert "stretched over the drawn depths" in page.text["debug-cap"]
+
+
+def test_ground_on_the_demo_adds_no_second_floor(server_url):
+    """The demo scene has its own floor: ticking "ground plane" adds none (the picture is the
+    same as without) and the page lists the warning that says why."""
+    pages, warnings = {}, {}
+    for ground in ("0", "1"):
+        done = run_browser(f"{server_url}/?autorender=1&width=320&height=240&ground={ground}",
+                           "--dump-dom")
+        dom = done.stdout.decode(errors="replace")
+        page = _Elements()
+        page.feed(dom)
+        assert page.by_id["status"].get("data-state") == "done", page.text.get("status")
+        pages[ground] = page
+        warnings[ground] = dom.split('id="warnings"', 1)[1].split("</ul>", 1)[0]
+    with_ground, without = (data_png(pages[g].by_id["color-img"]["src"]) for g in ("1", "0"))
+    np.testing.assert_array_equal(with_ground, without)
+    assert "own floor" in warnings["1"] and "own floor" not in warnings["0"]
+    sent = json.loads(pages["1"].text["request"])
+    assert sent["ground"] is True
+
+
+# --- Driving the page: Chromium's DevTools protocol ------------------------------------------
+
+
+class DevToolsPage:
+    """One page of a headless Chromium, driven over the DevTools protocol (real mouse and wheel
+    events through ``Input.dispatchMouseEvent``, script through ``Runtime.evaluate``)."""
+
+    def __init__(self, ws) -> None:
+        self.ws = ws  # a websockets.sync.client connection
+        self.next_id = 0
+
+    def call(self, method: str, timeout: float = 60.0, **params) -> dict:
+        self.next_id += 1
+        self.ws.send(json.dumps({"id": self.next_id, "method": method, "params": params}))
+        deadline = time.monotonic() + timeout
+        while True:
+            message = json.loads(self.ws.recv(timeout=max(deadline - time.monotonic(), 0.01)))
+            if message.get("id") == self.next_id:  # events and other replies are skipped
+                if "error" in message:
+                    raise RuntimeError(f"{method}: {message['error']}")
+                return message.get("result", {})
+
+    def evaluate(self, expression: str):
+        result = self.call("Runtime.evaluate", expression=expression, returnByValue=True,
+                           awaitPromise=True)
+        if "exceptionDetails" in result:
+            raise RuntimeError(f"{expression}: {result['exceptionDetails']}")
+        return result["result"].get("value")
+
+    def wait_for(self, expression: str, timeout: float = 120.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                value = self.evaluate(expression)
+            except RuntimeError:  # the page is still loading (its elements are not there yet)
+                value = None
+            if value:
+                return value
+            time.sleep(0.1)
+        raise AssertionError(f"timed out waiting for {expression}; status: "
+                             + str(self.evaluate("document.getElementById('status').textContent")))
+
+    def mouse(self, kind: str, x: float, y: float, **extra) -> None:
+        self.call("Input.dispatchMouseEvent", type=kind, x=x, y=y, **extra)
+
+
+@contextlib.contextmanager
+def devtools(url: str) -> Iterator[DevToolsPage]:
+    """Headless Chromium with a DevTools port, on ``url``; yields the page."""
+    from websockets.sync.client import connect
+
+    with tempfile.TemporaryDirectory(prefix="shadowmap-chromium-",
+                                     ignore_cleanup_errors=True) as profile:
+        # (Chromium's helper processes may still write to the profile as it is removed.)
+        log = tempfile.TemporaryFile()
+        proc = subprocess.Popen(
+            [chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             "--disable-extensions", "--hide-scrollbars", "--window-size=1280,1000",
+             "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=log)
+        try:
+            # Chromium writes the port it chose to DevToolsActivePort in the profile.
+            port_file = os.path.join(profile, "DevToolsActivePort")
+            deadline = time.monotonic() + 60
+            while not (os.path.exists(port_file) and open(port_file).read().strip()):
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    log.seek(0)
+                    raise RuntimeError("Chromium did not start: " + log.read().decode()[-2000:])
+                time.sleep(0.1)
+            port = open(port_file).read().split()[0]
+            target = httpx.put(f"http://127.0.0.1:{port}/json/new?{url}", timeout=30).json()
+            with connect(target["webSocketDebuggerUrl"], max_size=None, open_timeout=30) as ws:
+                yield DevToolsPage(ws)
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+            log.close()
+
+
+IDLE = ("document.getElementById('status').dataset.state === 'done' && !busy && !again "
+        "&& Number(document.getElementById('status').dataset.renders) >= {n}")
+
+
+def _renders(page: DevToolsPage) -> int:
+    return int(page.evaluate("Number(document.getElementById('status').dataset.renders || 0)"))
+
+
+def _render_done(page: DevToolsPage, after: int) -> tuple[dict, np.ndarray]:
+    """Wait for a render past the ``after``-th to finish with nothing more queued; the request
+    it sent and the colour image it shows."""
+    page.wait_for(IDLE.format(n=after + 1))
+    sent = json.loads(page.evaluate("document.getElementById('request').textContent"))
+    return sent, data_png(page.evaluate("document.getElementById('color-img').src"))
+
+
+def _image_centre(page: DevToolsPage) -> tuple[float, float]:
+    x, y = page.evaluate(
+        "(() => { const im = document.getElementById('color-img'); im.scrollIntoView();"
+        " const r = im.getBoundingClientRect(); return [r.left + r.width / 2,"
+        " r.top + r.height / 2]; })()")
+    return float(x), float(y)
+
+
+def test_drag_and_wheel_orbit_the_camera(server_url):
+    with devtools(f"{server_url}/?autorender=1&width=320&height=240") as page:
+        first, image0 = _render_done(page, 0)
+        assert "camera" not in first  # the first render frames the scene itself
+        camera = json.loads(page.evaluate("document.getElementById('plan').textContent"))[
+            "camera"]
+        centre = np.array(camera["focus_center"])
+        eye0 = np.array(camera["eye"])
+        radius = np.linalg.norm(eye0 - centre)
+
+        # Drag 120 px to the right: the camera swings around +Y, at the same height and
+        # distance, looking at the same point.
+        x, y = _image_centre(page)
+        width = page.evaluate("document.getElementById('color-img').clientWidth")
+        n = _renders(page)
+        page.mouse("mousePressed", x, y, button="left", buttons=1, clickCount=1)
+        for step in range(1, 7):
+            page.mouse("mouseMoved", x + 20 * step, y, button="left", buttons=1)
+        page.mouse("mouseReleased", x + 120, y, button="left", buttons=0, clickCount=1)
+        sent, image1 = _render_done(page, n)
+        eye1 = np.array(sent["camera"]["eye"])
+        np.testing.assert_allclose(sent["camera"]["target"], centre, atol=1e-9)
+        assert abs(np.linalg.norm(eye1 - centre) - radius) < 1e-6 * radius
+        assert abs(eye1[1] - eye0[1]) < 1e-6 * radius
+        swing = math.atan2(*(eye0 - centre)[[0, 2]]) - math.atan2(*(eye1 - centre)[[0, 2]])
+        assert math.isclose(swing % (2 * math.pi), 120 * math.pi / width, rel_tol=1e-3)
+        assert np.abs(image1.astype(int) - image0.astype(int)).mean() > 3  # a different view
+
+        # Wheel toward the scene: closer, along the same line.
+        n = _renders(page)
+        page.mouse("mouseWheel", x, y, deltaX=0, deltaY=-300)
+        sent, image2 = _render_done(page, n)
+        eye2 = np.array(sent["camera"]["eye"])
+        assert math.isclose(np.linalg.norm(eye2 - centre), radius * math.exp(-0.3), rel_tol=1e-6)
+        np.testing.assert_allclose((eye2 - centre) / np.linalg.norm(eye2 - centre),
+                                   (eye1 - centre) / radius, atol=1e-9)
+        assert np.abs(image2.astype(int) - image1.astype(int)).mean() > 3
+
+
+def test_light_azimuth_and_elevation_set_the_direction(server_url):
+    with devtools(f"{server_url}/?autorender=1&width=320&height=240&debug=light_depth") as page:
+        first, image0 = _render_done(page, 0)
+        n = _renders(page)
+        # As a user does: move the sliders (keyboard on the focused range inputs), then let go.
+        for slider, key, times in (("light-az", "ArrowRight", 40), ("light-el", "ArrowLeft", 25)):
+            page.evaluate(f"document.getElementById('{slider}').focus()")
+            for _ in range(times):
+                for kind in ("keyDown", "keyUp"):
+                    page.call("Input.dispatchKeyEvent", type=kind, key=key, code=key,
+                              windowsVirtualKeyCode=39 if key == "ArrowRight" else 37)
+        az = float(page.evaluate("document.getElementById('light-az').value"))
+        el = float(page.evaluate("document.getElementById('light-el').value"))
+        sent, image1 = _render_done(page, n)
+        a, e = math.radians(az), math.radians(el)
+        expect = [-math.cos(e) * math.sin(a), -math.sin(e), -math.cos(e) * math.cos(a)]
+        np.testing.assert_allclose(sent["lights"][0]["direction"], expect, atol=1e-4)
+        before = first["lights"][0]["direction"]
+        assert not np.allclose(before, sent["lights"][0]["direction"], atol=1e-2)
+        assert np.abs(image1.astype(int) - image0.astype(int)).mean() > 1  # the shadows moved
 
 
 def test_page_screenshot(server_url, tmp_path):

@@ -430,6 +430,36 @@ def test_missing_embreex_raises_reference_unavailable(monkeypatch):
         trace_reference(scene, camera(), [directional([0, -1, 0])])
 
 
+def test_missing_scipy_raises_reference_unavailable(monkeypatch):
+    """scipy is in the reference extra, not the service's install: without it the metrics say
+    what to install instead of failing with an ImportError (a 500 over HTTP)."""
+    truth = np.zeros((10, 12), bool)
+    truth[2:6, 3:8] = True
+    rend = np.roll(truth, 1, axis=1)
+    monkeypatch.setitem(sys.modules, "scipy", None)  # makes `from scipy import ...` fail
+    monkeypatch.setitem(sys.modules, "scipy.ndimage", None)
+    with pytest.raises(ReferenceUnavailable, match="scipy"):
+        shadow_metrics(_vis(rend), _vis(truth), np.ones_like(truth))
+    # Masks without a boundary need no distance transform, so no scipy.
+    empty = np.zeros_like(truth)
+    assert shadow_metrics(_vis(empty), _vis(empty), np.ones_like(truth)).iou == 1.0
+
+
+def test_service_without_scipy_refuses_the_reference_before_rendering(monkeypatch):
+    """The service offers the reference (else 422 unavailable_feature, before any render) only
+    where both embreex and scipy are installed."""
+    pytest.importorskip("fastapi")
+    import importlib.util
+
+    from shadowmap.app import deps
+
+    assert deps.optional_features()["reference"] is True
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "scipy" else find_spec(name, *a))
+    assert deps.optional_features()["reference"] is False
+
+
 # ------------------------------------------------------------------------------------------------
 # Metrics
 # ------------------------------------------------------------------------------------------------
