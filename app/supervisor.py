@@ -334,7 +334,8 @@ class Supervisor:
         self._ctx = multiprocessing.get_context("spawn")
         self._config = WorkerConfig(
             limits=settings.limits(), cache_bytes=settings.gpu_cache_bytes,
-            cache_entries=settings.scene_cache_entries, warmup_scene=warmup_scene,
+            cache_entries=settings.scene_cache_entries,
+            map_cache_bytes=settings.light_map_cache_bytes, warmup_scene=warmup_scene,
             warmup_params=dict(DEMO_PARAMS),
             log_level=logging.getLogger("shadowmap").getEffectiveLevel())
         self._cond = threading.Condition()

@@ -57,6 +57,8 @@ class WorkerConfig:
         ``gpu_cache_bytes`` of the settings.
     cache_entries : int
         ``scene_cache_entries`` of the settings.
+    map_cache_bytes : int
+        ``light_map_cache_bytes`` of the settings.
     warmup_scene : bytes or None
         A ``.glb`` rendered (twice, small) before the worker reports ready, or None for no
         warm-up.
@@ -68,6 +70,7 @@ class WorkerConfig:
     limits: Limits
     cache_bytes: int
     cache_entries: int
+    map_cache_bytes: int = 192 * 2**20
     warmup_scene: bytes | None = None
     warmup_params: dict = field(default_factory=dict)
     log_level: int = logging.INFO
@@ -231,7 +234,8 @@ def worker_main(conn: Connection, config: WorkerConfig) -> None:
 
     def new_renderer() -> Renderer:
         return Renderer(limits=config.limits, cache_bytes=config.cache_bytes,
-                        cache_entries=config.cache_entries)
+                        cache_entries=config.cache_entries,
+                        map_cache_bytes=config.map_cache_bytes)
 
     try:
         renderer = new_renderer()
@@ -337,7 +341,8 @@ def execute(renderer: Renderer, task: RenderTask) -> RenderReply:
     before = {**task.before, "parse": time.perf_counter() - t0}
     result = renderer.render(scene, task.params)
     notes = {"parse": "scene cache hit"} if cache_hit else {}
-    response = build_response(task.media, result, task.outputs, before, notes, started)
+    response = build_response(task.media, result, task.outputs, before, notes, started,
+                              task.params.float_format)
     del result, scene
     headers = {k: v for k, v in response.headers.items()
                if k not in ("content-length", "content-type")}

@@ -82,6 +82,30 @@ class BoundedCache(Generic[V]):
         self._trim()
         return value, True, False
 
+    def get(self, key: str) -> V | None:
+        """The value of ``key`` (marked recently used), or None; counted as a hit or a miss."""
+        value = self._items.get(key) if self.enabled and key else None
+        if value is None:
+            self.misses += 1
+            return None
+        self._items.move_to_end(key)
+        self.hits += 1
+        return value
+
+    def put(self, key: str, value: V) -> bool:
+        """Keep ``value`` under ``key``, evicting the oldest entries beyond the bounds.
+
+        Returns False, keeping nothing, when the cache is disabled, ``key`` is empty, or the value
+        alone is larger than ``max_bytes`` (the caller still owns it then).
+        """
+        if not self.enabled or not key or key in self._items:
+            return False
+        if self.max_bytes is not None and self._size(value) > self.max_bytes:
+            return False
+        self._items[key] = value
+        self._trim()
+        return True
+
     def _trim(self) -> None:
         while len(self._items) > 1 and (
             len(self._items) > self.max_entries

@@ -11,11 +11,13 @@ platform.
 
 from __future__ import annotations
 
+import math
 import time
 import weakref
 from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,6 +27,7 @@ from .cache import BoundedCache, content_key
 from .camera import Camera, orthonormalize_pose, resolve_camera
 from .encodings import debug_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
+from .ground import existing_floor
 from .lights import Light, resolve_lights
 from .limits import (
     Limits,
@@ -37,7 +40,7 @@ from .limits import (
 )
 from .params import RenderParams
 from .plan import RenderPlan, make_plan
-from .scene import Scene, is_trimesh, load_scene, scene_from_trimesh
+from .scene import Instance, Scene, is_trimesh, load_scene, scene_from_trimesh
 
 if TYPE_CHECKING:
     from .gl.resources import GpuScene
@@ -53,8 +56,9 @@ class LightDepth:
     ----------
     kind : {"ortho", "perspective", "cube", "cascades"}
     image : ndarray, shape (S, S), (2S, 3S) or (S, K*S), uint8
-        Decoded linear depth as grayscale, near = dark, nothing drawn = white (cube maps 3 x 2,
-        K cascades side by side, near first).
+        Decoded linear depth as grayscale, stretched over the depths drawn into the map (the
+        nearest caster black, the farthest 254; :func:`~.encodings.debug_image`), nothing drawn
+        = white (cube maps 3 x 2, K cascades side by side, near first, each stretched alone).
     depth : ndarray, shape (S, S), (6, S, S) or (K, S, S), float32
         Decoded linear depth in [0, 1] over [near, far]; NaN where nothing was drawn. Each
         cascade over its own range (``ranges``).
@@ -85,7 +89,9 @@ def _request_points(params: RenderParams) -> list[np.ndarray]:
     for lt in params.lights or []:
         if lt.type == "directional":
             continue
-        out += [np.asarray(v, np.float64) for v in (lt.position, lt.target) if v is not None]
+        # A point light has no target (each light type has exactly its own fields).
+        points = (lt.position, getattr(lt, "target", None))
+        out += [np.asarray(v, np.float64) for v in points if v is not None]
         if lt.pose is not None:
             out.append(np.asarray(lt.pose, np.float64)[:3, 3])
     return out
@@ -169,11 +175,17 @@ class Renderer:
         Upper bound of GPU memory held by cached scene uploads; 0 disables the upload cache.
     cache_entries : int
         Scenes kept parsed and uploaded, by :func:`~shadowmap.renderer.cache.content_key`;
-        0 disables both caches.
+        0 disables every cache.
+    map_cache_bytes : int
+        Upper bound of the memory held by cached shadow maps (0 disables the map cache): a
+        light whose map an earlier render drew with the same fit (``shadows.fit: "scene"``
+        across the views of a scene, or a repeated request) is not drawn again; the plan
+        reports it as ``"light_pass": "cached"``.
     """
 
     def __init__(self, platform: str | None = None, *, limits: Limits | None = None,
-                 cache_bytes: int = 256 * 2**20, cache_entries: int = 32) -> None:
+                 cache_bytes: int = 256 * 2**20, cache_entries: int = 32,
+                 map_cache_bytes: int = 192 * 2**20) -> None:
         from .gl.platform import select_platform
 
         select_platform(platform)  # before anything imports PyOpenGL
@@ -185,18 +197,24 @@ class Renderer:
         self.limits = limits or Limits()
         self.context = GLContext(platform)
         self.programs = ProgramCache()
-        self.light_pass = LightPass(self.programs)
+        map_entries = max(cache_entries, 4) if map_cache_bytes and cache_entries else 0
+        self.light_pass = LightPass(self.programs, cache_bytes=map_cache_bytes,
+                                    cache_entries=map_entries)
         self.camera_pass = CameraPass(self.programs)
         self.cache_bytes = cache_bytes
         self.cache_entries = cache_entries
         #: Parsed scenes by content key.
         self.scenes: BoundedCache[Scene] = BoundedCache(cache_entries)
+        #: Render plans by :func:`plan_key`.
+        self.plans: BoundedCache[RenderPlan] = BoundedCache(cache_entries * 2)
         #: GPU uploads by the scene's key (freed when evicted).
         self.uploads: BoundedCache[GpuScene] = BoundedCache(
             cache_entries, cache_bytes, size=lambda g: g.nbytes, on_evict=lambda g: g.release())
         #: Each source scene's :meth:`Scene.with_ground`, by the source object (see
         #: :meth:`_with_ground`), so that the per-scene arrays of a grounded scene are reused.
         self._grounded: OrderedDict[int, tuple[weakref.ref[Scene], tuple, Scene]] = OrderedDict()
+        #: Each source scene's own floor (see :meth:`_own_floor`), by the source object.
+        self._floors: OrderedDict[int, tuple[weakref.ref[Scene], Instance | None]] = OrderedDict()
         self._closed = False
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -293,6 +311,21 @@ class Renderer:
             self._grounded.popitem(last=False)
         return grounded
 
+    def _own_floor(self, scene: Scene) -> Instance | None:
+        """:func:`~shadowmap.renderer.ground.existing_floor` of a scene, once per scene object
+        (kept while the scene lives, for up to ``cache_entries`` scenes)."""
+        hit = self._floors.get(id(scene))
+        if hit is not None and hit[0]() is scene:
+            return hit[1]
+        floor = existing_floor(scene)
+        if self.cache_entries > 0:
+            for k in [k for k, v in self._floors.items() if v[0]() is None]:
+                del self._floors[k]
+            self._floors[id(scene)] = (weakref.ref(scene), floor)
+            while len(self._floors) > self.cache_entries:
+                self._floors.popitem(last=False)
+        return floor
+
     def _upload(self, scene: Scene) -> tuple[GpuScene, bool, bool]:
         """The scene's upload, from the cache when the same content came before.
 
@@ -336,7 +369,14 @@ class Renderer:
         # and a cached scene's list must not grow with every render.
         warnings = list(scene.warnings)
         if params.ground:
-            scene = self._with_ground(scene)
+            floor = self._own_floor(scene)
+            if floor is None:
+                scene = self._with_ground(scene)
+            else:
+                name = repr(floor.name) if floor.name else "an unnamed instance"
+                warnings.append(
+                    f"ground: no plane added: the scene has its own floor ({name}, spanning "
+                    "its footprint at its lowest point), and a second plane would show under it")
         timings["load"] = time.perf_counter() - t0
         check_scene(scene, self.limits, params)
         # The memory the render needs, before any GL work: refused over max_request_bytes,
@@ -376,13 +416,13 @@ class Renderer:
             # Again with the file's camera and lights, and the resolved positions.
             check_gpu_range(scene.bounds, gpu.origin, [camera.position] + [
                 lt.position for lt in lights if lt.type != "directional"])
-            plan = make_plan(scene, camera, lights, gpu.origin, params)
+            plan, plan_hit = self._plan(scene, camera, lights, gpu.origin, params)
             check_map_sizes((lp.map_size for lp in plan.map_lights),
                             min(self.context.max_texture_size, self.context.max_cube_size))
             timings["plan"] = time.perf_counter() - t
 
             t = time.perf_counter()
-            maps = self.light_pass.render(gpu, plan.lights, params.shadows)
+            maps = self.light_pass.render(gpu, plan.lights, params.shadows, scene.key)
             GL.glFinish()
             timings["light"] = time.perf_counter() - t
 
@@ -405,6 +445,13 @@ class Renderer:
                 gpu.release()
         result.warnings = list(plan.warnings)
         result.plan = self._plan_report(plan, params, hit)
+        result.plan["plan_cache"] = "hit" if plan_hit else "miss"
+        result.plan["camera"] = _camera_report(camera, scene)
+        cached = {m.plan.index for m in maps if m.cached}
+        for i, (lp, d) in enumerate(zip(plan.lights, result.plan["lights"], strict=True)):
+            if lp.kind is not None:
+                d["light_pass"] = "cached" if i in cached else "drawn"
+        result.plan["light_passes_cached"] = sum(len(m.plan.maps) for m in maps if m.cached)
         result.plan["shader_variants"] = {
             "light_pass": _variant_names(self.light_pass.variants),
             "camera_pass": _variant_names(self.camera_pass.variants),
@@ -417,6 +464,19 @@ class Renderer:
         timings["total"] = time.perf_counter() - t0
         result.timings = {k: round(v, 6) for k, v in timings.items()}
         return result
+
+    def _plan(self, scene: Scene, camera: Camera, lights: list[Light], origin: np.ndarray,
+              params: RenderParams) -> tuple[RenderPlan, bool]:
+        """:func:`make_plan`, or the plan made before for the same inputs; (plan, cache hit).
+
+        A plan is a pure function of the scene (its content key), the resolved camera and
+        lights, the origin and the request, and is immutable: a repeated request (a client
+        polling one view, a batch re-run) plans nothing.
+        """
+        key = plan_key(scene, camera, lights, origin, params) if self.plans.enabled else ""
+        plan, _, hit = self.plans.get_or_make(
+            key, lambda: make_plan(scene, camera, lights, origin, params))
+        return plan, hit
 
     @staticmethod
     def _plan_report(plan: RenderPlan, params: RenderParams, hit: bool) -> dict[str, Any]:
@@ -444,6 +504,39 @@ class Renderer:
             d["reference_seconds"] = round(ref.seconds, 4)
             out.append(d)
         return out
+
+
+def _camera_report(camera: Camera, scene: Scene) -> dict[str, Any]:
+    """The camera the render used, for the plan: where it is and looks, and the centre and
+    radius of what the automatic camera frames (the scene without an added ground), so that a
+    client can orbit it (the web page does)."""
+    lo, hi = scene.bounds if scene.focus is None else scene.focus
+    return {
+        "eye": camera.pose[:3, 3].tolist(),
+        "forward": (-camera.pose[:3, 2]).tolist(),
+        "up": camera.pose[:3, 1].tolist(),
+        "yfov_deg": math.degrees(camera.yfov),
+        "znear": camera.znear,
+        "zfar": camera.zfar,
+        "focus_center": ((lo + hi) / 2).tolist(),
+        "focus_radius": float(np.linalg.norm(hi - lo)) / 2,
+    }
+
+
+def plan_key(scene: Scene, camera: Camera, lights: list[Light], origin: np.ndarray,
+             params: RenderParams) -> str:
+    """Everything :func:`make_plan` reads, as one content key ("" for a scene without a key)."""
+    if not scene.key:
+        return ""
+    parts = [scene.key.encode(), np.asarray(origin, np.float64).tobytes(),
+             camera.pose.tobytes(),
+             repr((camera.yfov, camera.width, camera.height, camera.znear, camera.zfar)).encode(),
+             params.model_dump_json().encode()]
+    for lt in lights:
+        parts += [lt.position.tobytes(), lt.direction.tobytes(), np.asarray(lt.color).tobytes(),
+                  repr((lt.type, lt.intensity, lt.inner_cone, lt.outer_cone, lt.range,
+                        lt.cast_shadows)).encode()]
+    return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
 
 
 def _ground_state(scene: Scene) -> tuple[tuple, tuple]:
@@ -492,6 +585,12 @@ def _variant_names(variants: set[tuple]) -> list[str]:
     Attribute locations (``LOC_*``) and the per-light lists (``LIGHT_TYPES``, ``LIGHT_MAPS_2D``,
     ``LIGHT_MAPS_CUBE``) are left out: they only follow the vertex layout and the plan's lights.
     """
+    return list(_names_of(frozenset(variants)))
+
+
+@lru_cache(maxsize=256)
+def _names_of(variants: frozenset[tuple]) -> tuple[str, ...]:
+    """:func:`_variant_names` of one set of variants (frames repeat theirs)."""
     out = []
     for defines in variants:
         parts = []
@@ -501,7 +600,7 @@ def _variant_names(variants: set[tuple]) -> list[str]:
                 continue
             parts.append(name if value is True else f"{name}={value}")
         out.append(" ".join(parts))
-    return sorted(set(out))
+    return tuple(sorted(set(out)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -511,12 +610,6 @@ def _variant_names(variants: set[tuple]) -> list[str]:
 #: Largest difference from a rotation that a pose may show before it counts as scaled or
 #: sheared: poses written with six decimals are rigid to about 1e-6.
 RIGID_TOLERANCE = 1e-5
-#: Light fields each light type leaves unused, when the request sets them.
-_UNUSED_LIGHT_FIELDS = {
-    "directional": ("inner_cone_deg", "outer_cone_deg", "range"),
-    "point": ("direction", "target", "inner_cone_deg", "outer_cone_deg"),
-    "spot": (),
-}
 
 
 def request_warnings(params: RenderParams, scene: Scene, limits: Limits) -> list[str]:
@@ -555,10 +648,6 @@ def request_warnings(params: RenderParams, scene: Scene, limits: Limits) -> list
         for k, lp in enumerate(params.lights):
             if lp.pose is not None and not _is_rigid(lp.pose, f"light {k}"):
                 out.append(f"light {k}: the pose has scale or shear: its nearest rotation is used")
-            unused = [f for f in _UNUSED_LIGHT_FIELDS[lp.type] if f in lp.model_fields_set]
-            if unused:
-                out.append(f"light {k}: a {lp.type} light has no use for "
-                           f"{', '.join(unused)}: ignored")
     else:
         out += _file_light_warnings(scene)
     return out

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
 import sys
 import threading
 from pathlib import Path
@@ -35,7 +36,10 @@ class GLContext:
         try:
             module = pyrender_platform(self.platform)
             if self.platform == "egl":
-                self._platform = module.EGLPlatform(16, 16, device=module.get_device_by_index(0))
+                # SHADOWMAP_EGL_DEVICE picks one of several GPUs (a batch actor sets it to the
+                # GPU Ray gave it); the first device otherwise.
+                device = module.get_device_by_index(egl_device_index())
+                self._platform = module.EGLPlatform(16, 16, device=device)
             else:
                 self._platform = module.OSMesaPlatform(16, 16)
             self._platform.init_context()
@@ -118,6 +122,20 @@ def pyrender_platform(name: str) -> ModuleType:
             del sys.modules[_PLATFORMS_PACKAGE]
             raise
     return importlib.import_module(f"{_PLATFORMS_PACKAGE}.{name}")
+
+
+def egl_device_index() -> int:
+    """The EGL device to render on: ``SHADOWMAP_EGL_DEVICE`` (an index), else 0."""
+    value = os.environ.get("SHADOWMAP_EGL_DEVICE", "").strip()
+    if not value:
+        return 0
+    try:
+        index = int(value)
+    except ValueError:
+        raise RenderError(f"SHADOWMAP_EGL_DEVICE must be a device index, not {value!r}") from None
+    if index < 0:
+        raise RenderError(f"SHADOWMAP_EGL_DEVICE must not be negative, not {index}")
+    return index
 
 
 def check_gl(where: str) -> None:

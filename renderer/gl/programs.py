@@ -388,6 +388,10 @@ class Program:
             for s in shaders:
                 GL.glDeleteShader(s)
         self._uniforms = self._active_uniforms()
+        self._values: dict[int, bytes] = {}  # the value last sent to each uniform location
+        # The plan and texture units the camera pass last set this program's frame uniforms for.
+        self.frame_plan: object = None
+        self.frame_units: list[int] = []
 
     @staticmethod
     def _compile(stage: StageSource, kind: int, defines: Defines) -> int:
@@ -450,6 +454,13 @@ class Program:
         # The compiler may shorten an array to its last element in use: the rest is unused.
         count = min(count, size)
         flat = flat[: count * width]
+        # A program keeps its uniforms: a value it holds already is not sent again (most of a
+        # frame's uniforms repeat the last frame's, and each call through PyOpenGL costs far
+        # more than this comparison).
+        raw = flat.tobytes()
+        if self._values.get(loc) == raw:
+            return
+        self._values[loc] = raw
         if width == 16:
             fn(loc, count, GL.GL_TRUE, flat)  # row-major numpy matrices
         else:
@@ -492,6 +503,7 @@ class ProgramCache:
 
     def __init__(self, loader: Loader = shader_text) -> None:
         self._programs: dict[tuple, Program] = {}
+        self._seen: dict[tuple, Program] = {}  # by the defines' items as given
         self._loader = loader
 
     def get(
@@ -511,10 +523,17 @@ class ProgramCache:
             # The former API took tuples of library files: those now come in by #include.
             raise TypeError("a program is named by its two main files, e.g. "
                             "get('camera_pass.vert', 'camera_pass.frag', defines)")
+        # Draws ask with the same dicts, built in the same order, every frame: their items
+        # find the program without normalising them again.
+        fast = (vertex, fragment, tuple(defines.items())) if defines else (vertex, fragment)
+        prog = self._seen.get(fast)
+        if prog is not None:
+            return prog
         key = (vertex, fragment, normalize_defines(defines))
         prog = self._programs.get(key)
         if prog is None:
             prog = self._programs[key] = Program(*key, loader=self._loader)
+        self._seen[fast] = prog
         return prog
 
     def __len__(self) -> int:
@@ -524,3 +543,4 @@ class ProgramCache:
         for p in self._programs.values():
             p.release()
         self._programs.clear()
+        self._seen.clear()

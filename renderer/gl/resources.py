@@ -527,6 +527,11 @@ class GpuScene:
 # --------------------------------------------------------------------------------------------
 
 
+#: Bytes per texel of the internal formats framebuffers use.
+_TEXEL_BYTES = {GL.GL_RGBA8: 4, GL.GL_RGBA32F: 16, GL.GL_DEPTH_COMPONENT32F: 4,
+                GL.GL_DEPTH_COMPONENT24: 4}
+
+
 class Framebuffer:
     """An FBO with owned attachments.
 
@@ -547,6 +552,10 @@ class Framebuffer:
                  depth: tuple[int, bool] | None, cube: bool = False, depth_compare: bool = False,
                  linear: bool = False, layers: int = 0) -> None:
         self.width, self.height, self.cube, self.layers = width, height, cube, layers
+        # What the attachments hold (caches bound their size by it).
+        texels = width * height * (6 if cube else 1) * max(layers, 1)
+        self.nbytes = texels * (sum(_TEXEL_BYTES.get(c[0], 16) for c in colors)
+                                + (_TEXEL_BYTES.get(depth[0], 4) if depth is not None else 0))
         self.fbo = GL.glGenFramebuffers(1)
         self.color_textures: list[int] = []
         self.depth_texture = 0
@@ -641,20 +650,28 @@ class Framebuffer:
 
     def read_color(self, index: int, fmt: int, typ: int, channels: int,
                    dtype: npt.DTypeLike) -> np.ndarray:
-        """Read one colour attachment; returns (H, W, channels), row 0 at the top."""
+        """Read one colour attachment; returns (H, W, channels), row 0 at the top.
+
+        The result is a row-flipped view (negative row stride) of the array GL wrote into: GL's
+        row 0 is the bottom, and a contiguous top-down copy would cost several times the read
+        itself (the PNG writer takes the rows as they are).
+        """
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0 + index)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
-        data = GL.glReadPixels(0, 0, self.width, self.height, fmt, typ)
-        arr = np.frombuffer(data, dtype=dtype).reshape(self.height, self.width, channels)
+        # Into our own array: PyOpenGL's own return value is one more copy, as bytes.
+        arr = np.empty((self.height, self.width, channels), dtype)
+        GL.glReadPixels(0, 0, self.width, self.height, fmt, typ, arr)
         return arr[::-1]
 
     def read_depth(self) -> np.ndarray:
-        """Read the depth attachment as float32 (H, W), row 0 at the top."""
+        """Read the depth attachment as float32 (H, W), row 0 at the top (a flipped view, as
+        :meth:`read_color`)."""
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
-        data = GL.glReadPixels(0, 0, self.width, self.height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
-        return np.frombuffer(data, dtype=np.float32).reshape(self.height, self.width)[::-1]
+        arr = np.empty((self.height, self.width), np.float32)
+        GL.glReadPixels(0, 0, self.width, self.height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, arr)
+        return arr[::-1]
 
     def release(self) -> None:
         if self.color_textures:

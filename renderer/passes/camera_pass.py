@@ -144,6 +144,7 @@ class CameraPass:
     def _draw_groups(self, gpu: GpuScene, groups: list[tuple[int, bool, np.ndarray]],
                      frame: _FrameState, units: list[int], ordered: bool = False) -> None:
         """One draw per (GPU primitive, receive flag, slots) group, in the order given."""
+        plan = frame.plan
         for p, receive, slots in groups:
             gp = gpu.primitives[p]
             mat = gp.material
@@ -152,7 +153,12 @@ class CameraPass:
             prog = self.programs.get("camera_pass.vert", "camera_pass.frag", defines)
             prog.use()
             if prog.id not in frame.ready:  # uniforms stay with the program: once per frame
-                frame.set_frame_uniforms(prog, units)
+                # ... and across frames: a program last set up for this very plan (the
+                # renderer's plan cache hands the same object back for a repeated request,
+                # and the plan's key covers the request's every field) holds them already.
+                if prog.frame_plan is not plan or prog.frame_units != units:
+                    frame.set_frame_uniforms(prog, units)
+                    prog.frame_plan, prog.frame_units = plan, list(units)
                 frame.ready.add(prog.id)
             prog.set("u_base_color", mat.base_color)
             if frame.has_uv(gp):
@@ -186,14 +192,21 @@ class CameraPass:
             raise RenderError("the camera pass has not drawn a frame to read")
         out = CameraOutputs()
         if "color" in outputs:
-            rgba = fb.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
-            out.color = np.ascontiguousarray(rgba if alpha else rgba[..., :3])
+            # Read as the output wants it: GL drops the alpha while it copies, several times
+            # faster than NumPy taking three channels of four (a strided copy per pixel), and
+            # the rows stay whole for the PNG writer. A flipped view, not a copy (see
+            # Framebuffer.read_color).
+            if alpha:
+                out.color = fb.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
+            else:
+                out.color = fb.read_color(0, GL.GL_RGB, GL.GL_UNSIGNED_BYTE, 3, np.uint8)
         if "visibility" in outputs and n_lights > 0:
             parts = [
                 fb.read_color(1 + i, GL.GL_RGBA, GL.GL_FLOAT, 4, np.float32)
                 for i in range((n_lights + 3) // 4)
             ]
-            out.visibility = np.ascontiguousarray(np.concatenate(parts, axis=2)[..., :n_lights])
+            vis = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=2)
+            out.visibility = vis[..., :n_lights]
         if "depth" in outputs:
             d = fb.read_depth().astype(np.float64)
             n, f = camera.znear, camera.zfar

@@ -13,6 +13,7 @@ import numpy as np
 from OpenGL import GL
 
 from .. import encodings
+from ..cache import BoundedCache, content_key
 from ..gl.programs import ProgramCache
 from ..gl.resources import Framebuffer, GpuScene
 from ..params import ShadowParams
@@ -23,11 +24,12 @@ from ..scene import Material
 @dataclass(eq=False)
 class ShadowMap:
     """A rendered map: ``texture`` is the texture to sample (colour or depth), ``target`` its
-    type."""
+    type; ``cached``: drawn by an earlier render (:class:`LightPass`'s map cache)."""
 
     plan: LightShadow
     fbo: Framebuffer
     encoding: str
+    cached: bool = False
 
     @property
     def texture(self) -> int:
@@ -71,14 +73,58 @@ class ShadowMap:
         return np.where(t >= 1.0 - 1e-6, np.nan, t).astype(np.float32)
 
 
-class LightPass:
-    """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, filter)."""
+def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: ShadowParams) -> str:
+    """What a light's map holds, as one content key ("" when the scene has no key).
 
-    def __init__(self, programs: ProgramCache, pool_size: int = 8) -> None:
+    A map is a function of the scene's geometry (its key, and the upload's origin the matrices
+    are relative to), the map's fit (views, projections, depth range, size, faces, casters) and
+    the settings the light pass reads (encoding, filtering, polygon offset) — not of the camera:
+    two renders whose plans fit a light alike draw the same texels.
+    """
+    if not scene_key:
+        return ""
+    parts: list[bytes] = [scene_key.encode(), np.asarray(origin, np.float64).tobytes(),
+                          repr((shadows.encoding, shadows.filter, shadows.bias.polygon_offset,
+                                lp.kind, len(lp.cascades))).encode()]
+    for m in lp.maps:
+        parts += [m.view.tobytes(), m.proj.tobytes(), *(v.tobytes() for v in m.face_views),
+                  repr((m.near, m.far, m.map_size, list(m.faces))).encode(),
+                  np.asarray(m.casters, np.int64).tobytes()]
+    return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
+
+
+class LightPass:
+    """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, filter)
+    and a cache of drawn maps by :func:`map_key`.
+
+    Parameters
+    ----------
+    programs : ProgramCache
+    pool_size : int
+        Framebuffers kept for reuse by later renders.
+    cache_bytes : int
+        Upper bound of the attachments held by cached maps; 0 disables the map cache. A render
+        whose plan fits a light as an earlier render did (``shadows.fit: "scene"`` over one
+        scene, or the same request again) samples that map instead of drawing it.
+    cache_entries : int
+        Most maps cached.
+    """
+
+    def __init__(self, programs: ProgramCache, pool_size: int = 8, *,
+                 cache_bytes: int = 192 * 2**20, cache_entries: int = 16) -> None:
         self.programs = programs
         self.pool: dict[tuple, list[Framebuffer]] = {}
         self.pool_size = pool_size
         self.variants: set[tuple] = set()  # defines of the programs drawn with, per frame
+        self._taken: set[int] = set()  # framebuffers the current frame draws or samples
+        # An evicted map's framebuffer goes back to the pool: the next map of its shape reuses it.
+        self.cache: BoundedCache[tuple[tuple, Framebuffer]] = BoundedCache(
+            cache_entries, cache_bytes, size=lambda e: e[1].nbytes, on_evict=self._unkeep)
+
+    def _unkeep(self, entry: tuple[tuple, Framebuffer]) -> None:
+        pool_key, fb = entry
+        self.pool.setdefault(pool_key, []).append(fb)
+        self._trim(self._taken)
 
     def _framebuffer(self, key: tuple, taken: set[int]) -> Framebuffer:
         kind, size, encoding, linear, layers = key
@@ -118,12 +164,17 @@ class LightPass:
             if not fbs:
                 del self.pool[key]
 
-    def render(self, gpu: GpuScene, plans: list[LightShadow], shadows: ShadowParams
-               ) -> list[ShadowMap]:
-        """Render the maps of every light that has one; lights without a plan get no map."""
+    def render(self, gpu: GpuScene, plans: list[LightShadow], shadows: ShadowParams,
+               scene_key: str = "") -> list[ShadowMap]:
+        """Render the maps of every light that has one; lights without a plan get no map.
+
+        A map whose :func:`map_key` is cached is sampled as it is (``ShadowMap.cached``); the
+        others are drawn and then cached. ``scene_key``: the scene's content key ("" caches
+        nothing).
+        """
         maps = []
         self.variants = set()
-        taken: set[int] = set()
+        taken = self._taken = set()
         linear = shadows.encoding == "depth" and shadows.filter == "pcf"
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
@@ -135,7 +186,14 @@ class LightPass:
                 continue
             layers = len(lp.cascades)
             size = lp.cascades[0].map_size if layers else lp.map_size
-            fb = self._framebuffer((lp.kind, size, shadows.encoding, linear, layers), taken)
+            key = map_key(scene_key, gpu.origin, lp, shadows) if self.cache.enabled else ""
+            hit = self.cache.get(key) if key else None
+            if hit is not None:
+                taken.add(id(hit[1]))
+                maps.append(ShadowMap(lp, hit[1], shadows.encoding, cached=True))
+                continue
+            pool_key = (lp.kind, size, shadows.encoding, linear, layers)
+            fb = self._framebuffer(pool_key, taken)
             taken.add(id(fb))
             # (target, plan, view): every cube face, every cascade's layer, or the one map.
             targets: list[tuple[tuple[str, int] | None, LightShadow, np.ndarray]]
@@ -161,6 +219,10 @@ class LightPass:
                 else:
                     self._draw_casters(gpu, groups, part, view, shadows)
             maps.append(ShadowMap(lp, fb, shadows.encoding))
+            if key and self.cache.put(key, (pool_key, fb)):
+                self.pool[pool_key].remove(fb)  # the cache owns it now
+                if not self.pool[pool_key]:
+                    del self.pool[pool_key]
         self._trim(taken)
         return maps
 
@@ -205,6 +267,7 @@ class LightPass:
             gp.draw(None if len(slots) == len(gp.instances) else slots)
 
     def release(self) -> None:
+        self.cache.clear()  # back into the pool, released below
         for fbs in self.pool.values():
             for fb in fbs:
                 fb.release()

@@ -81,13 +81,19 @@ def seen_depth_range(ctx: PlanContext) -> tuple[float, float]:
     camera sees, within its near and far planes."""
     cam = ctx.camera
     forward = -cam.pose[:3, 2]
-    pts = [ctx.corners[ctx.seen.whole].reshape(-1, 3), ctx.seen.points]
-    p = np.concatenate(pts) if any(len(x) for x in pts) else np.zeros((0, 3))
-    if not len(p):
+    boxes = ctx.bounds[ctx.seen.whole]
+    points = ctx.seen.points
+    if not len(boxes) and not len(points):
         return cam.znear, cam.zfar
-    z = (p - ctx.cam_pos) @ forward
-    return (float(np.clip(z.min(), cam.znear, cam.zfar)),
-            float(np.clip(z.max(), cam.znear, cam.zfar)))
+    # A whole box's distance range along the axis from its centre and half-size (the extremes
+    # of its eight corners), the clipped parts' from their vertices.
+    c = (boxes[:, 0] + boxes[:, 1]) * 0.5 - ctx.cam_pos
+    h = (boxes[:, 1] - boxes[:, 0]) * 0.5
+    zc, zh = c @ forward, h @ np.abs(forward)
+    zp = (points - ctx.cam_pos) @ forward
+    lo = min(float((zc - zh).min(initial=np.inf)), float(zp.min(initial=np.inf)))
+    hi = max(float((zc + zh).max(initial=-np.inf)), float(zp.max(initial=-np.inf)))
+    return float(np.clip(lo, cam.znear, cam.zfar)), float(np.clip(hi, cam.znear, cam.zfar))
 
 
 def practical_splits(near: float, far: float, count: int, blend: float) -> np.ndarray:
@@ -229,7 +235,7 @@ def plan_cascades(ctx: PlanContext, light: Light, position: np.ndarray,
         (so that the cascades together cost about what one map of the largest size does).
     """
     shadows = ctx.params.shadows
-    explicit = shadows.map_size if isinstance(shadows.map_size, int) else None
+    explicit: int | None = shadows.map_size if isinstance(shadows.map_size, int) else None
     near, far = seen_depth_range(ctx)
     requested = shadows.cascades
     if far <= near * (1 + 1e-9):

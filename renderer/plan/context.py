@@ -9,6 +9,7 @@ computed per request, over all instances at once.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -176,6 +177,21 @@ class PlanContext:
             pixel_per_distance=2 * math.tan(camera.yfov / 2) / camera.height * AUTO_TEXEL_PIXELS,
             max_size=shadow.max_map_size,
             margin_texels=(shadow.pcf_kernel // 2 if shadow.filter == "pcf" else 0) + 2,
+        )
+
+    def scene_fit(self) -> PlanContext:
+        """This context for maps that cover every receiver (``shadows.fit: "scene"``).
+
+        The light fits then read no part of the camera's view: every receiver counts as seen,
+        whole, so a light's map depends on the scene and the light alone (its 'auto' size still
+        follows the camera's resolution, :meth:`map_size_for`) and one light pass serves every
+        view. The camera pass keeps the view test of this context.
+        """
+        receivers = np.flatnonzero(self.receive)
+        return dataclasses.replace(
+            self,
+            in_view=_frozen(np.ones(len(self.receive), bool)),
+            seen=Seen(whole=_frozen(receivers), points=_frozen(np.zeros((0, 3)))),
         )
 
     @property

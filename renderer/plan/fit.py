@@ -27,8 +27,6 @@ from .geometry import (
     CUBE_FACES,
     boxes_in_frustum,
     clip_boxes,
-    corner_max,
-    corner_min,
     cube_face_views,
     face_meets_cone,
     frustum,
@@ -37,6 +35,7 @@ from .geometry import (
     perspective,
     pose_from_direction,
     pyramid_planes,
+    transform_boxes,
     transform_points,
 )
 
@@ -150,9 +149,7 @@ def reach_directional(ctx: PlanContext, s: Subject) -> DirectionalReach:
     """The light-view column over what the camera sees of the receivers: their boxes clipped to
     the camera frustum (:class:`~.context.Seen`), laterally and in depth."""
     view = np.linalg.inv(pose_from_direction(np.zeros(3), s.light.direction))
-    lc = transform_points(view, ctx.corners)  # (N, 8, 3) light view
-    lo = corner_min(lc)
-    hi = corner_max(lc)
+    lo, hi = transform_boxes(view, ctx.bounds)  # (N, 3) light-view box bounds
     # A directional shadow falls straight along the light: a receiver point is shadowed only by
     # casters over it laterally and nearer the light. The window holds every seen receiver point.
     seen = _seen_light_points(ctx, view)

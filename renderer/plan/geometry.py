@@ -216,6 +216,26 @@ def transform_points(m: np.ndarray, p: np.ndarray) -> np.ndarray:
     return p @ m[:3, :3].T + m[:3, 3]
 
 
+def transform_boxes(m: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The axis-aligned bounds, after an affine matrix (4, 4), of boxes (N, 2, 3) (min, max).
+
+    The same box as the least and greatest of the eight transformed corners
+    (``corner_min(transform_points(m, box_corners(bounds)))``), from the centre and half-size
+    instead: ``R c + t`` and ``|R| h``, an eighth of the products (the corners' extremes along
+    each new axis are reached at the corner whose signs follow that row of ``R``).
+
+    Returns
+    -------
+    lo, hi : ndarray, shape (N, 3)
+    """
+    c = (bounds[:, 0] + bounds[:, 1]) * 0.5
+    h = (bounds[:, 1] - bounds[:, 0]) * 0.5
+    rot = m[:3, :3]
+    centre = c @ rot.T + m[:3, 3]
+    half = h @ np.abs(rot).T
+    return centre - half, centre + half
+
+
 def frustum_planes(view_proj: np.ndarray) -> np.ndarray:
     """Clip planes of a view-projection matrix (Gribb-Hartmann).
 

@@ -179,6 +179,9 @@ class RenderPlan:
     warnings : list of str
         What the plan had to approximate (cascades cut by the map slots, maps that would need
         more than the size limit).
+    fit : {"view", "scene"}
+        What the maps cover: the receivers the camera sees, or all of them
+        (``shadows.fit``).
     """
 
     camera: Camera
@@ -189,6 +192,7 @@ class RenderPlan:
     outputs: list[str]
     optimize: bool
     warnings: list[str] = field(default_factory=list)
+    fit: str = "view"
 
     @property
     def map_lights(self) -> list[LightShadow]:
@@ -202,6 +206,7 @@ class RenderPlan:
             "camera_pass": {"drawn": len(self.visible), "skipped": {"outside_view": self.culled}},
             "lights": [lp.to_dict() for lp in self.lights],
             "light_passes": len(self.map_lights),
+            "fit": self.fit,
             "outputs": self.outputs,
         }
 
@@ -231,7 +236,12 @@ def make_plan(
     ctx = PlanContext.build(scene, camera, origin, params)
     n = len(scene.instances)
     visible = np.flatnonzero(ctx.in_view).tolist() if params.optimize else list(range(n))
-    planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
+    if params.shadows.fit == "scene":
+        # Maps over every receiver, whatever the camera sees: one map per light, no cascades.
+        shadow_ctx = ctx.scene_fit()
+        planned = [plan_light(shadow_ctx, i, light) for i, light in enumerate(lights)]
+    else:
+        planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     return RenderPlan(
         camera=camera,
@@ -242,6 +252,7 @@ def make_plan(
         outputs=list(params.outputs),
         optimize=params.optimize,
         warnings=[w for w in warnings if w],
+        fit=params.shadows.fit,
     )
 
 

@@ -18,9 +18,10 @@
 
 float compare_2d(MAP2D map, vec2 uv, float ref) {
 #if ENCODING == ENC_DEPTH
-    return texture(map, vec3(uv, ref));  // GL_COMPARE_REF_TO_TEXTURE, GL_LEQUAL
+    // Level 0 given: the map has no mipmaps, and llvmpipe then skips the derivatives.
+    return textureLod(map, vec3(uv, ref), 0.0);  // GL_COMPARE_REF_TO_TEXTURE, GL_LEQUAL
 #else
-    return step(ref, decode_depth(texture(map, uv)));
+    return step(ref, decode_depth(textureLod(map, uv, 0.0)));
 #endif
 }
 
@@ -42,9 +43,9 @@ float shadow_2d(MAP2D map, vec2 uv, float ref, vec2 dref, float size) {
 // The same on layer `layer` of an array map (cascades).
 float compare_layer(MAPARRAY map, vec2 uv, float layer, float ref) {
 #if ENCODING == ENC_DEPTH
-    return texture(map, vec4(uv, layer, ref));
+    return textureGrad(map, vec4(uv, layer, ref), vec2(0.0), vec2(0.0));  // level 0, as above
 #else
-    return step(ref, decode_depth(texture(map, vec3(uv, layer))));
+    return step(ref, decode_depth(textureLod(map, vec3(uv, layer), 0.0)));
 #endif
 }
 
@@ -65,9 +66,9 @@ float shadow_layer(MAPARRAY map, vec2 uv, float layer, float ref, vec2 dref, flo
 
 float compare_cube(MAPCUBE map, vec3 dir, float ref) {
 #if ENCODING == ENC_DEPTH
-    return texture(map, vec4(dir, ref));
+    return textureGrad(map, vec4(dir, ref), vec3(0.0), vec3(0.0));  // level 0, as above
 #else
-    return step(ref, decode_depth(texture(map, dir)));
+    return step(ref, decode_depth(textureLod(map, dir, 0.0)));
 #endif
 }
 

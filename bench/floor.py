@@ -1,0 +1,448 @@
+"""How close a shadowed frame comes to what the rasterizer itself costs (the floor).
+
+Per scene, at 640x480 with default settings, frames interleaved:
+
+- **ours**: ``Renderer.render`` of the scene with its lights casting shadows (the colour output,
+  read back), wall time;
+- **ours unshadowed**: the same with ``cast_shadows: false``;
+- **floor**: the same work through plain PyOpenGL with nothing else in the way: every instance's
+  triangles pre-transformed into one vertex buffer; per map our plan renders (each cascade, each
+  cube face), one depth-only draw of exactly the casters the plan draws, into a depth texture of
+  the plan's map size; one untextured Lambert draw of the instances the camera pass draws, into
+  an RGBA8 + depth framebuffer; ``glReadPixels`` of the colour into a NumPy array. A
+  ``glFinish`` before, the read-back ends it: no Python between the calls but the calls;
+- **Python per frame**: the share of our frame spent outside OpenGL calls (every ``gl*``
+  function timed for the measurement, PyOpenGL's wrapper, the driver's work and the waits
+  included), applied to the uninstrumented wall time.
+
+Prints the ratio ours / floor per scene and its geometric mean (target 1.3), and writes
+``bench/results/floor.{md,csv}``; ``--quick`` writes to ``bench/results/quick/``.
+
+Run: ``PYTHONPATH=. .venv/bin/python bench/floor.py [--quick] [--repeats N]``
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np  # noqa: E402
+
+from bench import _common as C  # before shadowmap: selects the GL platform
+from shadowmap.renderer import Renderer, RenderParams  # noqa: E402
+from shadowmap.renderer.plan import RenderPlan, make_plan  # noqa: E402
+from shadowmap.renderer.scene import Scene  # noqa: E402
+
+TARGET_RATIO = 1.3
+TARGET_PYTHON_MS = 1.0
+TARGET_PYTHON_MS_MANY = 5.0
+QUICK_SCENES = ("Duck", "caster_on_ground", "room_point")
+
+DEPTH_VS = """#version 330 core
+layout(location = 0) in vec3 a_position;
+uniform mat4 u_mvp;
+void main() { gl_Position = u_mvp * vec4(a_position, 1.0); }
+"""
+DEPTH_FS = """#version 330 core
+void main() {}
+"""
+CAMERA_VS = """#version 330 core
+layout(location = 0) in vec3 a_position;
+layout(location = 1) in vec3 a_normal;
+uniform mat4 u_mvp;
+out vec3 v_normal;
+void main() { v_normal = a_normal; gl_Position = u_mvp * vec4(a_position, 1.0); }
+"""
+CAMERA_FS = """#version 330 core
+in vec3 v_normal;
+uniform vec3 u_light_dir;
+out vec4 frag;
+void main() {
+    vec3 n = normalize(v_normal);
+    float d = max(dot(n, -u_light_dir), 0.0);
+    frag = vec4(vec3(0.25) + vec3(0.75) * d, 1.0);
+}
+"""
+
+
+class Floor:
+    """The raw-GL frame of one scene and plan (see the module docstring)."""
+
+    def __init__(self, scene: Scene, plan: RenderPlan) -> None:
+        from OpenGL import GL
+        from OpenGL.GL import shaders
+
+        self.GL = GL
+        origin = plan.origin
+        starts, counts, pos, nrm = [], [], [], []
+        first = 0
+        for inst in scene.instances:
+            tri = scene.world_triangles(inst) - origin  # (F, 3, 3)
+            v = tri.reshape(-1, 3)
+            e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+            n = np.repeat(np.cross(e1, e2), 3, axis=0)
+            pos.append(v)
+            nrm.append(n)
+            starts.append(first)
+            counts.append(len(v))
+            first += len(v)
+        self.starts = np.array(starts, np.int32)
+        self.counts = np.array(counts, np.int32)
+        data = np.hstack([np.concatenate(pos), np.concatenate(nrm)]).astype(np.float32)
+        self.vao = GL.glGenVertexArrays(1)
+        GL.glBindVertexArray(self.vao)
+        self.vbo = GL.glGenBuffers(1)
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self.vbo)
+        GL.glBufferData(GL.GL_ARRAY_BUFFER, data.nbytes, data, GL.GL_STATIC_DRAW)
+        for loc in (0, 1):
+            GL.glEnableVertexAttribArray(loc)
+            GL.glVertexAttribPointer(loc, 3, GL.GL_FLOAT, False, 24,
+                                     GL.ctypes.c_void_p(12 * loc))
+        GL.glBindVertexArray(0)
+        self.depth_prog = shaders.compileProgram(
+            shaders.compileShader(DEPTH_VS, GL.GL_VERTEX_SHADER),
+            shaders.compileShader(DEPTH_FS, GL.GL_FRAGMENT_SHADER))
+        self.camera_prog = shaders.compileProgram(
+            shaders.compileShader(CAMERA_VS, GL.GL_VERTEX_SHADER),
+            shaders.compileShader(CAMERA_FS, GL.GL_FRAGMENT_SHADER))
+        # Every map the plan renders: (size, view-projection, caster ranges).
+        self.maps = []
+        for lp in plan.map_lights:
+            views = [lp.face_views[f] for f in lp.faces] if lp.kind == "cube" else [lp.view]
+            for view in views:
+                self.maps.append((lp.map_size, (lp.proj @ view).astype(np.float32),
+                                  self._ranges(lp.casters)))
+        self.textures: dict[int, tuple[int, int]] = {}
+        for size, _, _ in self.maps:
+            if size not in self.textures:
+                self.textures[size] = self._depth_target(size)
+        cam = plan.camera
+        self.width, self.height = cam.width, cam.height
+        view = np.linalg.inv(cam.pose.copy())
+        view[:3, 3] = view[:3, 3] + view[:3, :3] @ origin  # origin-relative positions
+        self.camera_mvp = (cam.projection @ view).astype(np.float32)
+        self.visible = self._ranges(plan.visible)
+        lights = [lp.light for lp in plan.lights]
+        d = lights[0].direction if lights else np.array([0.0, -1.0, 0.0])
+        self.light_dir = (np.asarray(d, float) / max(np.linalg.norm(d), 1e-30)).astype(np.float32)
+        self.fbo, self.color, self.depth_rb = self._camera_target()
+        self.pixels = np.empty((self.height, self.width, 4), np.uint8)
+
+    def _ranges(self, indices) -> tuple[np.ndarray, np.ndarray, int]:
+        idx = np.asarray(indices, np.int64)
+        return self.starts[idx].copy(), self.counts[idx].copy(), len(idx)
+
+    def _depth_target(self, size: int) -> tuple[int, int]:
+        GL = self.GL
+        tex = GL.glGenTextures(1)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_DEPTH_COMPONENT32F, size, size, 0,
+                        GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, None)
+        fbo = GL.glGenFramebuffers(1)
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, fbo)
+        GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_TEXTURE_2D,
+                                  tex, 0)
+        GL.glDrawBuffers(1, [GL.GL_NONE])
+        GL.glReadBuffer(GL.GL_NONE)
+        return fbo, tex
+
+    def _camera_target(self) -> tuple[int, int, int]:
+        GL = self.GL
+        color = GL.glGenTextures(1)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, color)
+        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA8, self.width, self.height, 0, GL.GL_RGBA,
+                        GL.GL_UNSIGNED_BYTE, None)
+        rb = GL.glGenRenderbuffers(1)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb)
+        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT32F, self.width,
+                                 self.height)
+        fbo = GL.glGenFramebuffers(1)
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, fbo)
+        GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_TEXTURE_2D,
+                                  color, 0)
+        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT,
+                                     GL.GL_RENDERBUFFER, rb)
+        return fbo, color, rb
+
+    def frame(self) -> np.ndarray:
+        """One light pass + camera pass + read-back; returns the (bottom-up) RGBA pixels."""
+        GL = self.GL
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDisable(GL.GL_CULL_FACE)
+        GL.glBindVertexArray(self.vao)
+        GL.glUseProgram(self.depth_prog)
+        loc = GL.glGetUniformLocation(self.depth_prog, "u_mvp")
+        for size, mvp, (first, count, n) in self.maps:
+            GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.textures[size][0])
+            GL.glViewport(0, 0, size, size)
+            GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
+            GL.glUniformMatrix4fv(loc, 1, GL.GL_TRUE, mvp)
+            if n:
+                GL.glMultiDrawArrays(GL.GL_TRIANGLES, first, count, n)
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
+        GL.glViewport(0, 0, self.width, self.height)
+        GL.glClearColor(1.0, 1.0, 1.0, 1.0)
+        GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
+        GL.glUseProgram(self.camera_prog)
+        GL.glUniformMatrix4fv(GL.glGetUniformLocation(self.camera_prog, "u_mvp"), 1, GL.GL_TRUE,
+                              self.camera_mvp)
+        GL.glUniform3fv(GL.glGetUniformLocation(self.camera_prog, "u_light_dir"), 1,
+                        self.light_dir)
+        first, count, n = self.visible
+        if n:
+            GL.glMultiDrawArrays(GL.GL_TRIANGLES, first, count, n)
+        GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0)
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+        GL.glReadPixels(0, 0, self.width, self.height, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE,
+                        self.pixels)
+        return self.pixels
+
+    def timed(self) -> None:
+        self.GL.glFinish()
+        self.frame()
+
+    def release(self) -> None:
+        GL = self.GL
+        for fbo, tex in self.textures.values():
+            GL.glDeleteFramebuffers(1, [fbo])
+            GL.glDeleteTextures([tex])
+        GL.glDeleteFramebuffers(1, [self.fbo])
+        GL.glDeleteTextures([self.color])
+        GL.glDeleteRenderbuffers(1, [self.depth_rb])
+        GL.glDeleteBuffers(1, [self.vbo])
+        GL.glDeleteVertexArrays(1, [self.vao])
+        GL.glDeleteProgram(self.depth_prog)
+        GL.glDeleteProgram(self.camera_prog)
+
+
+def python_share(fn, repeats: int = 5) -> float:
+    """Fraction of ``fn``'s wall time spent outside OpenGL calls.
+
+    Every ``gl*`` function of ``OpenGL.GL`` (the module the renderer calls through) is wrapped
+    with a timer for the measurement: the time inside them, PyOpenGL's own wrapper and the waits
+    (``glFinish``, ``glReadPixels``) included, is GL time; the rest is Python. (cProfile cannot
+    tell: it books a ctypes call's time to its Python caller.)
+    """
+    from OpenGL import GL
+
+    spent = [0.0]
+    clock = time.perf_counter
+    originals = {n: getattr(GL, n) for n in dir(GL)
+                 if n.startswith("gl") and callable(getattr(GL, n))}
+
+    def timed(f):
+        def call(*args, **kwargs):
+            t = clock()
+            try:
+                return f(*args, **kwargs)
+            finally:
+                spent[0] += clock() - t
+        return call
+
+    for name, f in originals.items():
+        setattr(GL, name, timed(f))
+    try:
+        t0 = clock()
+        for _ in range(repeats):
+            fn()
+        total = clock() - t0
+    finally:
+        for name, f in originals.items():
+            setattr(GL, name, f)
+    return max(0.0, 1.0 - spent[0] / total) if total else math.nan
+
+
+def plan_for(r: Renderer, scene: Scene, params: RenderParams) -> RenderPlan:
+    """The plan :meth:`Renderer.render` makes for this request (same camera, lights, origin)."""
+    from shadowmap.renderer.camera import resolve_camera
+    from shadowmap.renderer.lights import resolve_lights
+
+    result = r.render(scene, params)
+    gpu, _, _ = r._upload(scene)
+    camera = resolve_camera(params.camera, scene, params.width, params.height)
+    lights = resolve_lights(params.lights, scene)
+    plan = make_plan(scene, camera, lights, gpu.origin, params)
+    assert plan.to_dict()["light_passes"] == result.plan["light_passes"]
+    return plan
+
+
+VIEWS = 16
+VIEW_SCENES = ("Duck", "CesiumMilkTruck", "caster_on_ground", "room_point")
+
+
+def orbit_params(bs: C.BenchScene, k: int, fit: str, shadows: bool = True) -> RenderParams:
+    """View ``k`` of :data:`VIEWS` around the scene (its default camera's distance and height)."""
+    camera, _ = bs.resolved()
+    lo, hi = bs.scene.bounds
+    target = (lo + hi) / 2
+    rel = camera.position - target
+    radius = float(np.hypot(rel[0], rel[2])) or float(np.linalg.norm(hi - lo))
+    a = math.atan2(rel[2], rel[0]) + 2 * math.pi * k / VIEWS
+    eye = [target[0] + radius * math.cos(a), camera.position[1], target[2] + radius * math.sin(a)]
+    lights = bs.lights if shadows else C.without_shadows(bs.lights)
+    return bs.params(camera={"eye": eye, "target": target.tolist()}, lights=lights,
+                     shadows={"fit": fit})
+
+
+def views_cost(r: Renderer, bs: C.BenchScene, repeats: int) -> dict[str, float]:
+    """Median ms per view of :data:`VIEWS` views: view-fitted maps, one scene-fitted map shared
+    by every view (the light-map cache), and no shadows."""
+    sets = {name: [orbit_params(bs, k, fit, shadows) for k in range(VIEWS)]
+            for name, fit, shadows in (("view", "view", True), ("scene", "scene", True),
+                                       ("unshadowed", "view", False))}
+
+    def run_views(params: list[RenderParams]):
+        last = None
+        for p in params:
+            last = r.render(bs.scene, p)
+        return last
+
+    t = C.time_interleaved({name: (lambda ps=ps: run_views(ps)) for name, ps in sets.items()},
+                           repeats, warmup=1)
+    out = {name: t[name].ms() / VIEWS for name in sets}
+    last = t["scene"].last
+    out["cached"] = float(last.plan["light_passes_cached"]) if last is not None else math.nan
+    return out
+
+
+#: The many-instances scene: a field of 10,000 boxes (``bench/instancing.py``), whole in view.
+INSTANCES = 10_000
+
+
+def instances_scene() -> C.BenchScene:
+    from bench import instancing
+
+    return C.BenchScene(instances_name(), instancing.build_scene(INSTANCES),
+                        [dict(instancing.LIGHT)], kind="stress",
+                        note=f"{INSTANCES:,} instances of one box over a ground plane")
+
+
+def instances_name() -> str:
+    return f"boxes_{INSTANCES // 1000}k"
+
+
+def scenes(quick: bool) -> list[C.BenchScene]:
+    out = C.model_scenes() + [C.stress_scene(n) for n in C.STRESS_SCENES] + [instances_scene()]
+    if quick:
+        out = [s for s in out if s.name in QUICK_SCENES]
+    return out
+
+
+def run(quick: bool, repeats: int) -> None:
+    out_dir = C.results_dir(quick)
+    t_start = time.perf_counter()
+    rows, csv_rows = [], []
+    r = Renderer()
+    try:
+        bench_scenes = scenes(quick)
+        bar = C.Progress(len(bench_scenes), "floor")
+        for bs in bench_scenes:
+            p_sh = bs.params()
+            p_un = bs.params(lights=C.without_shadows(bs.lights))
+            plan = plan_for(r, bs.scene, p_sh)
+            floor = Floor(bs.scene, plan)
+            try:
+                t = C.time_interleaved({
+                    "ours": lambda bs=bs, p=p_sh: r.render(bs.scene, p),
+                    "unshadowed": lambda bs=bs, p=p_un: r.render(bs.scene, p),
+                    "floor": floor.timed,
+                }, repeats, warmup=2)
+            finally:
+                floor.release()
+            share = python_share(lambda bs=bs, p=p_sh: r.render(bs.scene, p))
+            ours, un, fl = t["ours"].ms(), t["unshadowed"].ms(), t["floor"].ms()
+            py_ms = share * ours
+            ratio = ours / fl
+            rows.append([bs.name, C.fmt(ours, 2), C.fmt(un, 2), C.fmt(fl, 2),
+                         C.fmt(ratio, 2) + ("" if ratio <= TARGET_RATIO else " ✗"),
+                         C.fmt(py_ms, 2), C.fmt(t["ours"].ms("plan"), 2)])
+            csv_rows.append({
+                "scene": bs.name, "triangles": bs.scene.triangle_count,
+                "instances": len(bs.scene.instances), "maps": len(floor.maps),
+                "map_size": max((m[0] for m in floor.maps), default=0),
+                "ours_ms": round(ours, 3), "ours_unshadowed_ms": round(un, 3),
+                "floor_ms": round(fl, 3), "ratio": round(ratio, 4),
+                "python_ms": round(py_ms, 3), "python_share": round(share, 4),
+                "plan_ms": round(t["ours"].ms("plan"), 3),
+                "light_ms": round(t["ours"].ms("light"), 3),
+                "camera_ms": round(t["ours"].ms("camera"), 3),
+                "readback_ms": round(t["ours"].ms("readback"), 3), "repeats": repeats,
+            })
+            bar.step(bs.name)
+        view_rows, view_csv = [], []
+        for bs in bench_scenes:
+            if bs.name not in VIEW_SCENES:
+                continue
+            v = views_cost(r, bs, max(3, repeats // 2))
+            ratio = v["scene"] / v["unshadowed"]
+            view_rows.append([bs.name, C.fmt(v["view"], 2), C.fmt(v["scene"], 2),
+                              C.fmt(v["unshadowed"], 2), C.fmt(v["view"] / v["unshadowed"], 2),
+                              C.fmt(ratio, 2) + ("" if ratio <= 1.2 else " ✗")])
+            view_csv.append({"scene": bs.name, "views": VIEWS, "view_fit_ms": round(v["view"], 3),
+                             "scene_fit_ms": round(v["scene"], 3),
+                             "unshadowed_ms": round(v["unshadowed"], 3),
+                             "scene_fit_ratio": round(ratio, 4)})
+        bar.close()
+        machine = C.machine_info(r)
+    finally:
+        r.close()
+    ratios = [c["ratio"] for c in csv_rows]
+    gmean = float(np.exp(np.mean(np.log(ratios))))
+    headers = ["scene", "ours ms", "ours unshadowed ms", "floor ms", "ours / floor",
+               "Python ms", "plan ms"]
+    table = C.markdown_table(headers, rows)
+    over = [c["scene"] for c in csv_rows if c["ratio"] > TARGET_RATIO]
+    notes = [
+        f"Geometric mean of ours / floor: {gmean:.2f}x (target <= {TARGET_RATIO}x; "
+        + (f"over it (✗): {', '.join(over)})." if over else "met on every scene)."),
+        "Python per frame: "
+        + ", ".join(f"{c['scene']} {c['python_ms']:.2f} ms" for c in csv_rows
+                    if c["scene"] in ("Duck", instances_name()))
+        + f" (targets <= {TARGET_PYTHON_MS:g} ms at Duck scale, <= {TARGET_PYTHON_MS_MANY:g} ms "
+        f"at {INSTANCES:,} instances); median over scenes "
+        f"{np.median([c['python_ms'] for c in csv_rows]):.2f} ms.",
+    ]
+    view_table = C.markdown_table(
+        ["scene", "view fit ms/view", "scene fit ms/view", "unshadowed ms/view",
+         "view fit / unshadowed", "scene fit / unshadowed"], view_rows)
+    if view_csv:
+        notes.append(f"{VIEWS} views around each scene: with `shadows.fit: \"scene\"` one light "
+                     "pass serves every view (the light-map cache); per view it costs "
+                     f"{max(c['scene_fit_ratio'] for c in view_csv):.2f}x an unshadowed view at "
+                     "most (target <= 1.2x).")
+    elapsed = time.perf_counter() - t_start
+    md = "\n".join([
+        "# The floor: our shadowed frame against the rasterizer's own cost",
+        "",
+        "640x480, default settings (`RenderParams()`), colour output read back. Median wall "
+        f"time of {repeats} calls after two warm-ups, the three interleaved. The floor is "
+        "plain PyOpenGL over the same geometry: one depth-only draw of the plan's casters per "
+        "map (same sizes, same cascades and cube faces), one untextured Lambert draw of the "
+        "visible instances, `glReadPixels` (see `bench/floor.py`). Python ms: the share of our "
+        "frame outside OpenGL calls (each timed) times its wall time.",
+        "",
+        table,
+        "",
+        f"## {VIEWS} views of one scene",
+        "",
+        f"The same scene from {VIEWS} cameras on a circle at the default camera's distance and "
+        "height, all views in one timed call (per-view median shown), the three interleaved: "
+        "maps fitted to each view (`fit: \"view\"`, the default), one map fitted to the scene "
+        "and shared (`fit: \"scene\"`), and no shadows (`cast_shadows: false`).",
+        "",
+        view_table,
+        "",
+        *[f"- {n}" for n in notes],
+        "",
+        f"Machine: {machine}. Run time {elapsed:.0f} s" + (" (--quick)." if quick else "."),
+        "",
+    ])
+    C.finish(out_dir, "floor", md, csv_rows + view_csv, [table, view_table], notes, elapsed)
+
+
+def main(argv: list[str] | None = None) -> None:
+    C.bench_main(__doc__ or "", run, "three scenes, fewer repeats", 5, argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,170 @@
+"""``shadows.fit: "scene"`` and the light-map cache: one light pass for every view of a scene."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from shadowmap.renderer import Renderer, RenderParams, RequestError
+from shadowmap.renderer.camera import resolve_camera
+from shadowmap.renderer.demo import demo_glb
+from shadowmap.renderer.lights import resolve_lights
+from shadowmap.renderer.plan import make_plan
+from shadowmap.renderer.scene import load_scene
+
+
+def orbit(k: int, n: int = 8, fit: str = "scene", radius: float = 4.0, **shadows) -> dict:
+    a = 2 * math.pi * k / n
+    return {
+        "width": 160, "height": 120,
+        "camera": {"eye": [radius * math.cos(a), 2.5, radius * math.sin(a)],
+                   "target": [0.0, 0.5, 0.0]},
+        "shadows": {"fit": fit, **shadows},
+        "outputs": ["color", "visibility"],
+    }
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return load_scene(demo_glb())
+
+
+def plan_of(scene, params: dict):
+    p = RenderParams.model_validate(params)
+    cam = resolve_camera(p.camera, scene, p.width, p.height)
+    lights = resolve_lights(p.lights, scene)
+    lo, hi = scene.bounds
+    return make_plan(scene, cam, lights, (lo + hi) / 2, p)
+
+
+# -- the plan (no GL) ----------------------------------------------------------------------------
+
+
+def test_scene_fit_does_not_depend_on_the_camera(demo):
+    plans = [plan_of(demo, orbit(k)) for k in range(4)]
+    first = plans[0].lights[0]
+    assert first.kind == "ortho"
+    for p in plans[1:]:
+        lp = p.lights[0]
+        assert np.array_equal(lp.view, first.view) and np.array_equal(lp.proj, first.proj)
+        assert (lp.near, lp.far, lp.casters) == (first.near, first.far, first.casters)
+    assert all(p.to_dict()["fit"] == "scene" for p in plans)
+
+
+def test_view_fit_follows_the_camera(demo):
+    a, b = (plan_of(demo, orbit(k, fit="view")).lights[0] for k in (0, 2))
+    assert not np.array_equal(a.proj, b.proj)
+
+
+def test_scene_fit_covers_receivers_the_camera_does_not_see(demo):
+    # A camera close to the floor, looking at one corner: the view fit covers that corner only,
+    # the scene fit the whole floor.
+    params = {"width": 160, "height": 120,
+              "camera": {"eye": [2.5, 0.4, 2.5], "target": [3.5, 0.0, 3.5]}}
+    view = plan_of(demo, {**params, "shadows": {"fit": "view", "cascades": 1}}).lights[0]
+    scene = plan_of(demo, {**params, "shadows": {"fit": "scene"}}).lights[0]
+    assert scene.kind == "ortho" and view.kind == "ortho"
+
+    def window_area(lp) -> float:
+        # Orthographic: x, y scale of the projection are 2 / width, 2 / height.
+        return 4.0 / (lp.proj[0, 0] * lp.proj[1, 1])
+
+    assert window_area(scene) > 2 * window_area(view)
+    assert not scene.cascades
+
+
+def test_scene_fit_has_no_cascades():
+    from shadowmap.renderer.render import _as_params
+
+    with pytest.raises(RequestError, match="cascades"):
+        _as_params({"shadows": {"fit": "scene", "cascades": 2}})
+    assert RenderParams.model_validate({"shadows": {"fit": "scene", "cascades": 1}})
+
+
+# -- the cache (GL) -----------------------------------------------------------------------------
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(np.array_equal(a, b, equal_nan=True))
+
+
+@pytest.mark.gl
+def test_views_share_one_light_pass_and_match_fresh_renders(renderer, demo):
+    with Renderer(map_cache_bytes=0) as fresh:
+        renderer.context.make_current()
+        reports = []
+        for k in range(4):
+            got = renderer.render(demo, orbit(k, n=4))
+            reports.append(got.plan["lights"][0]["light_pass"])
+            fresh.context.make_current()
+            want = fresh.render(demo, orbit(k, n=4))
+            renderer.context.make_current()
+            assert want.plan["lights"][0]["light_pass"] == "drawn"
+            assert _same(got.color, want.color)
+            assert _same(got.visibility, want.visibility)
+    assert reports[1:] == ["cached"] * 3
+    assert got.plan["light_passes_cached"] == 1
+
+
+@pytest.mark.gl
+def test_a_changed_light_or_setting_draws_again(renderer, demo):
+    base = orbit(0)
+    renderer.render(demo, base)
+    again = renderer.render(demo, orbit(1))
+    assert again.plan["lights"][0]["light_pass"] == "cached"
+    moved = {**orbit(1), "lights": [{"type": "directional", "direction": [-0.3, -1.0, -0.5]}]}
+    assert renderer.render(demo, moved).plan["lights"][0]["light_pass"] == "drawn"
+    hard = orbit(1, filter="hard")
+    assert renderer.render(demo, hard).plan["lights"][0]["light_pass"] == "drawn"
+    packed = orbit(1, encoding="rgba8")
+    assert renderer.render(demo, packed).plan["lights"][0]["light_pass"] == "drawn"
+    assert renderer.render(demo, orbit(2, encoding="rgba8")).plan["lights"][0][
+        "light_pass"] == "cached"
+
+
+@pytest.mark.gl
+def test_a_repeated_view_fit_request_is_cached(renderer, demo):
+    params = orbit(3, fit="view")
+    first = renderer.render(demo, params)
+    second = renderer.render(demo, params)
+    assert second.plan["lights"][0]["light_pass"] == "cached"
+    assert _same(first.color, second.color)
+
+
+@pytest.mark.gl
+def test_maps_over_the_cache_bound_are_not_cached(demo):
+    # A 256² depth map is 256 KiB: a 64 KiB bound keeps none of them.
+    with Renderer(map_cache_bytes=64 * 2**10) as r:
+        for k in range(2):
+            res = r.render(demo, orbit(k, map_size=256))
+            assert res.plan["lights"][0]["light_pass"] == "drawn"
+        assert len(r.light_pass.cache) == 0
+
+
+@pytest.mark.gl
+def test_evicted_maps_are_reused_not_leaked(demo):
+    # Room for one 256² map: every new fit evicts the last, whose framebuffer the next draw
+    # takes from the pool.
+    with Renderer(map_cache_bytes=300 * 2**10) as r:
+        for k in range(6):
+            r.render(demo, orbit(k, fit="view", map_size=256, cascades=1))
+        held = sum(len(v) for v in r.light_pass.pool.values()) + len(r.light_pass.cache)
+        assert len(r.light_pass.cache) == 1
+        assert held <= 2
+
+
+@pytest.mark.gl
+def test_a_repeated_request_plans_nothing(renderer, demo):
+    params = orbit(5, fit="view", map_size=512)
+    first = renderer.render(demo, params)
+    second = renderer.render(demo, params)
+    assert second.plan["plan_cache"] == "hit"
+    for key in ("camera_pass", "light_passes", "fit", "outputs"):
+        assert second.plan[key] == first.plan[key]
+    assert second.plan["lights"][0]["light_pass"] == "cached"
+    assert second.plan["shader_variants"]["light_pass"] == []  # no light-pass draw at all
+    other = renderer.render(demo, {**params, "specular": 0.5})
+    assert other.plan["plan_cache"] == "miss"  # any change of the request plans again
+    assert _same(first.color, second.color)
