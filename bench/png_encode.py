@@ -2,7 +2,7 @@
 
 For each model (:data:`bench._common.MODEL_NAMES`) one 640×480 colour frame is rendered with the
 default settings (plus a 1920×1080 frame of the first model), then the service's PNG writer
-(:func:`shadowmap.app.encode.png_bytes`: no row filter, deflate level 1) is timed on it with
+(:func:`shadowmap.renderer.png.png_bytes`: no row filter, deflate level 1) is timed on it with
 each compressor, interleaved (zlib, isal, zlib, ...). Every ISA-L file is decoded back with
 Pillow and compared with the frame. Medians of ``--repeats`` calls.
 
@@ -20,8 +20,8 @@ import zlib
 import numpy as np
 
 from bench import _common as C  # before anything that imports PyOpenGL: selects the platform
-from shadowmap.app import encode  # noqa: E402
 from shadowmap.renderer import RenderParams  # noqa: E402
+from shadowmap.renderer import png as encode  # noqa: E402  (the service's PNG writer)
 
 
 def _frames(r: C.Renderer, quick: bool) -> list[tuple[str, np.ndarray]]:

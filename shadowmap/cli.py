@@ -47,20 +47,64 @@ PARAMS is a JSON file with the request (all fields optional), for example:
 
 Fields: width, height; camera {{pose 4x4 | eye, target, up; yfov_deg; znear; zfar}} (omitted: the
 file's camera, else framed automatically); lights [{{type directional|spot|point; pose 4x4 |
-position, direction | position, target; color; intensity; inner_cone_deg; outer_cone_deg; range;
-cast_shadows}}] (omitted: the file's KHR_lights_punctual lights, else one default);
+position, direction | position, target; color; intensity; inner_cone_deg, outer_cone_deg (spot);
+range (spot, point); cast_shadows}}] (each type only its own fields; a point light has a pose or
+a position; omitted: the file's KHR_lights_punctual lights, else one default);
 ambient; background; specular; shininess; shadows {{encoding rgba8|rgb8|rg8|r8|depth; map_size
 16..16384 | "auto"; filter hard|pcf; pcf_kernel; bias {{constant; slope; slope_max;
 normal_offset; polygon_offset; quantisation_steps}}}}; outputs [color, light_depth, visibility,
-depth]; alpha; ground; reference; optimize.
+depth]; alpha; ground; reference; optimize; float_format png16|exr.
 
 -o FILE writes the colour image as PNG to FILE; without --out nothing else is written.
 Writes to OUT (--out; default ./out unless -o is given): color.png, light_depth_<i>.png and
 light_depth_<i>.npy per light, visibility.npy (H x W, or H x W x L for several lights),
 depth.npy, report.json (timings, GL renderer, the render plan, warnings, and with --reference
-the error against the ray-traced reference). Each warning (what the render had to drop or
-approximate) is also printed to stderr as "shadowmap: warning: ...".
+the error against the ray-traced reference). With --float-format exr (or float_format "exr"
+in PARAMS) also depth.exr (channel Z: depth in scene units) and visibility_<i>.exr per light
+(channel Y: 1 lit .. 0 shadowed), raw float32, NaN where there is no geometry. Each warning
+(what the render had to drop or approximate) is also printed to stderr as
+"shadowmap: warning: ...".
 """
+
+
+def compact_json(value: object, width: int = 92, indent: int = 2, _at: int = 0,
+                 _prefix: int = 0) -> str:
+    """JSON as a person writes it: a value that fits on the rest of its line stays on one line
+    (``[3, 2.5, 4]``, a small object), a longer object or list gets one item per line, and a
+    long list of numbers or strings fills its lines.
+
+    ``json.loads(compact_json(v)) == v`` for any JSON value ``v``.
+
+    Parameters
+    ----------
+    value : JSON value
+    width : int
+        Longest line aimed at (a single item longer than that still goes on one line).
+    indent : int
+        Spaces per nesting level.
+    """
+    flat = json.dumps(value, separators=(", ", ": "))
+    if _at + _prefix + len(flat) <= width or not isinstance(value, (dict, list)) or not value:
+        return flat
+    pad = " " * (_at + indent)
+    if isinstance(value, dict):
+        items = [f"{pad}{json.dumps(k)}: "
+                 + compact_json(v, width, indent, _at + indent, len(json.dumps(k)) + 2)
+                 for k, v in value.items()]
+        return "{\n" + ",\n".join(items) + "\n" + " " * _at + "}"
+    if not any(isinstance(v, (dict, list)) for v in value):
+        # Scalars: as many to a line as fit.
+        lines, line = [], ""
+        for v in value:
+            word = json.dumps(v)
+            if line and len(pad) + len(line) + len(word) + 2 > width:
+                lines.append(line + ",")
+                line = ""
+            line += (", " if line else "") + word
+        lines.append(line)
+        return "[\n" + "\n".join(pad + x for x in lines) + "\n" + " " * _at + "]"
+    items = [pad + compact_json(v, width, indent, _at + indent) for v in value]
+    return "[\n" + ",\n".join(items) + "\n" + " " * _at + "]"
 
 
 def _fail(message: str, code: int = 2) -> int:
@@ -74,6 +118,7 @@ def _render(args: argparse.Namespace) -> int:
 
     from .renderer import Renderer, RenderParams, load_scene
     from .renderer.errors import RenderError, ShadowMapError
+    from .renderer.exr import exr_available
     from .renderer.scene import directory_resources
 
     params: dict = {}
@@ -106,6 +151,9 @@ def _render(args: argparse.Namespace) -> int:
         return _fail("-o/--output writes the color output, but outputs leaves it out")
     scene_path = Path(args.scene)
     out = Path(args.out) if args.out is not None else None if args.output else Path("out")
+    if request.float_format == "exr" and out is not None and not exr_available():
+        # Before the render: the files are written after it.
+        return _fail("float_format exr needs the OpenEXR package: pip install 'OpenEXR>=3.5'")
     try:
         resources = None
         if scene_path.suffix.lower() == ".gltf":
@@ -136,7 +184,7 @@ def _render(args: argparse.Namespace) -> int:
     for warning in result.warnings:
         print(f"shadowmap: warning: {' '.join(warning.splitlines())}", file=sys.stderr)
     if out is not None:
-        _write_out(out, scene_path, result)
+        _write_out(out, scene_path, result, request.float_format)
     t = result.timings
     written = ", ".join(str(p) for p in (args.output, out) if p is not None)
     print(f"rendered {scene_path.name} in {t['total'] * 1000:.1f} ms on {result.info['renderer']} "
@@ -147,9 +195,12 @@ def _render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_out(out: Path, scene_path: Path, result: RenderResult) -> None:
+def _write_out(out: Path, scene_path: Path, result: RenderResult,
+               float_format: str = "png16") -> None:
     import numpy as np
     from PIL import Image
+
+    from .renderer.exr import DEPTH_CHANNEL, VISIBILITY_CHANNEL, write_exr
 
     out.mkdir(parents=True, exist_ok=True)
     if result.color is not None:
@@ -160,8 +211,14 @@ def _write_out(out: Path, scene_path: Path, result: RenderResult) -> None:
     if result.visibility is not None:
         vis = result.visibility
         np.save(out / "visibility.npy", vis[..., 0] if vis.shape[2] == 1 else vis)
+        if float_format == "exr":  # one file per light, as the service's visibility_<i> parts
+            for i in range(vis.shape[2]):
+                write_exr(out / f"visibility_{i}.exr", {VISIBILITY_CHANNEL: vis[..., i]},
+                          {"light": i})
     if result.depth is not None:
         np.save(out / "depth.npy", result.depth)
+        if float_format == "exr":
+            write_exr(out / "depth.exr", {DEPTH_CHANNEL: result.depth})
     report = result.report()
     report["scene"] = str(scene_path)
     (out / "report.json").write_text(json.dumps(report, indent=2, default=_jsonable))
@@ -250,6 +307,8 @@ def _apply_flags(args: argparse.Namespace, params: dict[str, Any]) -> _Orbit | N
         params["reference"] = True
     if args.outputs:
         params["outputs"] = args.outputs.split(",")
+    if args.float_format is not None:
+        params["float_format"] = args.float_format
     if args.ground is not None:
         params["ground"] = args.ground
     if args.light_dir is not None:
@@ -342,12 +401,116 @@ def _serve(args: argparse.Namespace) -> int:
 
     overrides = {name: getattr(args, name) for name in SERVE_SETTINGS}
     try:
+        if args.ray is not None:
+            return _serve_ray(args, overrides)
         run(host=args.host, port=args.port, workers=args.workers, **overrides)
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"]) or "settings"
         return _fail(f"invalid setting: {where}: {first['msg']}")
     return 0
+
+
+def _serve_ray(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
+    """``serve --ray``: the same app on Ray Serve, ``--replicas`` copies."""
+    try:
+        import ray  # noqa: F401
+
+        from .app import ray_serve
+    except ImportError as exc:
+        return _fail(f"--ray needs the ray extra ({exc.name or exc} is missing): "
+                     "pip install 'shadowmap-service[server,ray]'", 4)
+    if args.replicas < 1:
+        return _fail("--replicas must be at least 1")
+    # Connection handling is Ray Serve's proxy's: these uvicorn options have no effect there.
+    for name in ("keep_alive_timeout", "limit_concurrency"):
+        overrides.pop(name, None)
+    address = None if args.ray == "auto" else args.ray
+    ray_serve.run(args.host, args.port, args.replicas, address=address, **overrides)
+    return 0
+
+
+def _batch(args: argparse.Namespace) -> int:
+    from .batch import render_many
+    from .renderer.errors import RenderError
+
+    if args.workers is not None and args.workers < 1:
+        return _fail("--workers must be at least 1")
+    if args.ray is not None:
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            return _fail("--ray needs the ray extra: pip install 'shadowmap-service[ray]'", 4)
+    progress = None if args.quiet else _BatchBar()
+    try:
+        report = render_many(args.manifest, args.out, workers=args.workers, ray=args.ray,
+                             actors=args.workers if args.ray is not None else None,
+                             timeout=args.timeout, progress=progress, resume=not args.force)
+    except OSError as exc:
+        return _fail(f"{exc.filename or args.manifest}: {exc.strerror or exc}")
+    except (RuntimeError, RenderError) as exc:
+        return _fail(str(exc), 3)
+    finally:
+        if progress is not None:
+            progress.close()
+    for rec in report.records:
+        if rec["status"] != "ok":
+            err = rec["error"]
+            print(f"shadowmap: {rec['status']}: {rec['id']}: {err['error']}: {err['detail']}",
+                  file=sys.stderr)
+    c = report.counts
+    done = sum(c.values())
+    rate = done / report.seconds if report.seconds > 0 else 0.0
+    print(f"batch: {c['ok']} ok, {c['error']} error, {c['failed']} failed, {report.skipped} "
+          f"already done; {done} jobs in {report.seconds:.1f} s ({rate:.1f} jobs/s, "
+          f"{report.backend or 'no'} backend) -> {Path(args.out) / 'results.jsonl'}")
+    return 0 if c["failed"] == 0 else 1
+
+
+class _BatchBar:
+    """tqdm's bar on stderr: jobs done, jobs/s and the time left."""
+
+    def __init__(self) -> None:
+        self.bar: Any = None
+
+    def start(self, total: int, skipped: int) -> None:
+        from tqdm import tqdm
+
+        note = f" ({skipped} already done)" if skipped else ""
+        self.bar = tqdm(total=total, unit="job", desc="batch" + note, file=sys.stderr,
+                        dynamic_ncols=True)
+
+    def update(self, record: dict[str, Any]) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+            if record["status"] != "ok":
+                self.bar.set_postfix_str(f"last {record['status']}: {record['id']}")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+BATCH_HELP = """\
+MANIFEST is JSON Lines, one job a line:
+
+  {"id": "duck-1", "scene": "models/Duck.glb", "params": {"width": 640, "ground": true}}
+  {"id": "demo-views", "scene": {"builtin": "demo"}, "params": {"outputs": ["color", "depth"]},
+   "views": [{"eye": [4, 3, 4], "target": [0, 0, 0]}, {"eye": [-4, 3, 4], "target": [0, 0, 0]}],
+   "lights": [[{"type": "directional", "direction": [-1, -2, -1]}]]}
+
+scene is a .glb/.gltf path relative to the manifest (a .gltf's files are read from beside it), or
+{"builtin": "demo"}; params is the request of `shadowmap render --params`; views (cameras) and
+lights (light lists) are optional variations, each rendered on the same loaded scene into
+OUT/<id>/view_<i>[_light_<j>]/. Each render writes color.png, visibility_<i>.png and
+visibility.npy, depth.png and depth.npy, light_depth_<i>.png/.npy (the outputs it asks for) and
+meta.json (camera intrinsics and extrinsics, lights, timings, plan, warnings, metrics).
+
+OUT/results.jsonl gets one record per job: status ok, error (bad file, bad params, over a limit:
+the batch goes on) or failed (its worker died twice, or --timeout twice). Running the same
+command again skips jobs already done with the same inputs (job id and a hash of the job and its
+scene file), so a killed batch resumes where it stopped. Exit status 1 when a job failed.
+"""
 
 
 #: ``serve`` options that set a service setting (``--upload-timeout`` is ``upload_timeout``, the
@@ -376,7 +539,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="render a glTF scene to files",
         description="Render SCENE (.glb or .gltf; a .gltf's external files are read from its "
         "folder) with shadows.",
-        epilog=RENDER_HELP.format(example=json.dumps(EXAMPLE_PARAMS, indent=2)),
+        epilog=RENDER_HELP.format(example=compact_json(EXAMPLE_PARAMS)),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     r.add_argument("scene")
@@ -397,6 +560,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="point the orbit camera looks at (default: the centre of the scene's "
                    "bounds)")
     r.add_argument("--outputs", help="comma-separated: color,light_depth,visibility,depth")
+    r.add_argument("--float-format", choices=("png16", "exr"), default=None,
+                   help="exr: also write depth and visibility as float32 OpenEXR files "
+                   "(depth.exr, visibility_<i>.exr)")
     r.add_argument("--reference", action="store_true",
                    help="also measure the error against the ray-traced reference")
     r.add_argument("--out", metavar="DIR",
@@ -412,7 +578,31 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--" + name.replace("_", "-"), type=kind, default=None, dest=name,
                        help=f"{text} (default: $SHADOWMAP_{name.upper()}, else the setting's "
                        "default)")
+    s.add_argument("--ray", nargs="?", const="auto", default=None, metavar="ADDRESS",
+                   help="serve on Ray Serve instead: 'auto' (the default when given without a "
+                   "value) joins this machine's Ray cluster or starts one; or a cluster address")
+    s.add_argument("--replicas", type=int, default=1,
+                   help="with --ray: copies of the service, each with its own render worker")
     s.set_defaults(func=_serve)
+    b = sub.add_parser(
+        "batch", help="render the jobs of a manifest to files (resumable; local or on Ray)",
+        description="Render every job of MANIFEST.jsonl to OUT/<job id>/.",
+        epilog=BATCH_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    b.add_argument("manifest", metavar="MANIFEST.jsonl")
+    b.add_argument("--out", metavar="DIR", required=True, help="output folder")
+    b.add_argument("--workers", type=int, default=None,
+                   help="worker processes (with --ray: actors); default: what this machine "
+                   "(or cluster) uses well")
+    b.add_argument("--ray", metavar="auto|ADDRESS", default=None,
+                   help="run on Ray: 'auto' joins this machine's Ray cluster or starts one; "
+                   "or a cluster address (ray://head:10001)")
+    b.add_argument("--timeout", type=float, default=None,
+                   help="seconds one job may run before its worker is killed")
+    b.add_argument("--force", action="store_true",
+                   help="render every job again, even those already done")
+    b.add_argument("--quiet", action="store_true",
+                   help="no progress bar (for logs): failed jobs and the summary only")
+    b.set_defaults(func=_batch)
     return parser
 
 

@@ -71,7 +71,7 @@ def test_png_round_trips_with_either_compressor(monkeypatch, shape, dtype):
 
     from PIL import Image
 
-    from shadowmap.app import encode
+    from shadowmap.renderer import png as encode  # the writer app/encode.py re-exports
 
     rng = np.random.default_rng(3)
     a = rng.integers(0, np.iinfo(dtype).max, size=shape, dtype=dtype, endpoint=True)

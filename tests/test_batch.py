@@ -1,0 +1,217 @@
+"""``shadowmap batch`` on the local process pool: outputs, bad jobs, resume after SIGKILL, workers
+that die or hang."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from batch_jobs import (
+    BAD,
+    SIZE,
+    assert_same_as_single,
+    check_batch,
+    latest_records,
+    manifest_entries,
+    write_manifest,
+)
+from shadowmap.batch import render_many
+from shadowmap.batch.manifest import load_manifest
+
+pytestmark = pytest.mark.gl
+
+
+@pytest.fixture(scope="module")
+def batch(tmp_path_factory, models):
+    """The 200-job manifest rendered once with one local worker."""
+    folder = tmp_path_factory.mktemp("batch")
+    entries = manifest_entries(models, folder)
+    manifest = write_manifest(folder / "jobs.jsonl", entries)
+    out = folder / "out"
+    report = render_many(manifest, out, workers=1)
+    return entries, manifest, out, report
+
+
+def test_every_good_job_is_rendered_and_bad_ones_are_recorded(batch):
+    entries, _, out, report = batch
+    assert len(entries) == 200
+    counts = report.counts
+    assert counts == {"ok": 200 - len(BAD), "error": len(BAD), "failed": 0}
+    recs = check_batch(out, entries)
+    multi = recs["job-004"]
+    assert multi["variations"] == 3 and len([n for n in multi["outputs"]
+                                             if n.endswith("meta.json")]) == 3
+    # The views of a fit-"scene" job share one light pass: the second and third reuse it.
+    assert multi["light_passes_cached"] == 2
+
+
+def test_outputs_equal_single_renders(batch, renderer):
+    entries, _, out, _ = batch
+    by_id = {e["id"]: e for e in entries}
+    # Every scene, every output set, views and light variations.
+    for job_id in ("job-000", "job-001", "job-002", "job-003", "job-004", "job-005",
+                   "job-006", "job-007", "job-014", "job-017", "job-123"):
+        assert_same_as_single(renderer, out, by_id[job_id])
+
+
+def test_meta_json(batch):
+    _, _, out, _ = batch
+    meta = json.loads((out / "job-004" / "view_001" / "meta.json").read_text())
+    cam = meta["camera"]
+    assert cam["width"] == SIZE["width"] and cam["height"] == SIZE["height"]
+    assert cam["K"][0][2] == SIZE["width"] / 2 and cam["fx"] == cam["fy"] > 0
+    pose = cam["camera_to_world"]
+    assert pose[3] == [0, 0, 0, 1]
+    assert [round(v, 9) for v in (pose[0][3], pose[1][3], pose[2][3])] == [
+        round(v, 9) for v in meta["params"]["camera"]["eye"]]
+    assert meta["lights"][0]["type"] == "directional"
+    assert meta["plan"]["fit"] == "scene"
+    assert {"load", "light", "camera", "total"} <= set(meta["timings"])
+    assert isinstance(meta["warnings"], list)
+
+
+def test_rerun_skips_everything(batch):
+    _, manifest, out, _ = batch
+    before = (out / "results.jsonl").read_text()
+    report = render_many(manifest, out, workers=1)
+    assert report.skipped == 200 and report.records == []
+    assert (out / "results.jsonl").read_text() == before
+
+
+def test_changed_inputs_are_rendered_again(tmp_path, models):
+    entries = [{"id": "a", "scene": {"builtin": "demo"}, "params": SIZE},
+               {"id": "b", "scene": str(models / "Duck.glb"), "params": SIZE}]
+    out = tmp_path / "out"
+    assert render_many(entries, out, workers=1).counts["ok"] == 2
+    entries[0]["params"] = {**SIZE, "ambient": [0.5, 0.5, 0.5]}
+    report = render_many(entries, out, workers=1)
+    assert report.skipped == 1 and [r["id"] for r in report.records] == ["a"]
+    hashes = [json.loads(line)["hash"] for line in (out / "results.jsonl").read_text().split()]
+    assert len(hashes) == 3 and hashes[0] != hashes[2]
+
+
+def test_manifest_errors_are_jobs(tmp_path):
+    path = tmp_path / "m.jsonl"
+    path.write_text('{"id": "x", "scene": {"builtin": "demo"}}\nnot json\n[1]\n\n# comment\n'
+                    '{"id": "x", "scene": {"builtin": "demo"}}\n{"id": "../up", "scene": "a.glb"}\n'
+                    '{"scene": {"builtin": "moon"}}\n')
+    jobs = load_manifest(path)
+    assert [j.id for j in jobs] == ["x", "line-2", "line-3", "x.line-6", "line-7", "line-8"]
+    assert jobs[0].error is None
+    assert all(j.error is not None and j.error.code == "invalid_job" for j in jobs[1:])
+
+
+def test_sigkill_halfway_then_resume(tmp_path, models):
+    """A batch killed with SIGKILL (driver and workers) resumes: the second run renders only the
+    jobs without a record, and every job ends with exactly its one result."""
+    entries = manifest_entries(models, tmp_path)
+    manifest = write_manifest(tmp_path / "jobs.jsonl", entries)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "shadowmap", "batch", str(manifest), "--out",
+                             str(out), "--workers", "1", "--quiet"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
+    results = out / "results.jsonl"
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline:
+            if results.exists() and results.read_text().count("\n") >= 80:
+                break
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            time.sleep(0.05)
+        else:
+            pytest.fail("the batch did not reach 80 records")
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(10)
+    done_before = latest_records(out)
+    assert 80 <= len(done_before) < 200
+    report = render_many(manifest, out, workers=1)
+    assert report.skipped == len(done_before)
+    again = {r["id"] for r in report.records}
+    assert again.isdisjoint(done_before) and again | set(done_before) == {e["id"] for e in entries}
+    check_batch(out, entries)
+    assert not (out / ".partial").exists()
+
+
+def test_dead_worker_is_replaced_and_its_job_retried(tmp_path, models):
+    """A worker killed in the middle of a job: a new one takes its place, the job is rendered on
+    the second try and the batch goes on."""
+    entries = [{"id": f"j{i:02d}", "scene": {"builtin": "demo"},
+                "params": {**SIZE, "outputs": ["color", "visibility"]}} for i in range(12)]
+    killed: list[int] = []
+
+    class KillOnce:
+        def start(self, total: int, skipped: int) -> None:
+            pass
+
+        def update(self, record: dict) -> None:
+            # The worker that sent this record is rendering the next job already.
+            if record["id"] == "j03" and not killed:
+                killed.append(record["worker"]["pid"])
+                os.kill(record["worker"]["pid"], signal.SIGKILL)
+
+    report = render_many(entries, tmp_path / "out", workers=1, progress=KillOnce())
+    assert report.counts == {"ok": 12, "error": 0, "failed": 0}
+    retried = [r for r in report.records if r["attempts"] == 2]
+    assert len(retried) == 1 and retried[0]["worker"]["pid"] != killed[0]
+
+
+def test_hung_job_is_killed_retried_once_then_failed(tmp_path):
+    """Past ``timeout``, a job's worker is killed; the job is tried once more and then recorded
+    as failed, and the jobs after it are rendered (3 s: a new worker's first job builds the demo
+    scene, about 1.7 s here; the slow one takes about 7 s on llvmpipe)."""
+    slow = {"width": 2048, "height": 2048, "outputs": ["color", "visibility"],
+            "lights": [{"type": "point", "position": [-2.0 + 1.3 * i, 2.5, 1.0]}
+                       for i in range(4)],
+            "shadows": {"map_size": 2048, "pcf_kernel": 9}, "optimize": False}
+    entries = [{"id": "quick-1", "scene": {"builtin": "demo"}, "params": SIZE},
+               {"id": "slow", "scene": {"builtin": "demo"}, "params": slow},
+               {"id": "quick-2", "scene": {"builtin": "demo"}, "params": SIZE}]
+    report = render_many(entries, tmp_path / "out", workers=1, timeout=3.0)
+    recs = {r["id"]: r for r in report.records}
+    assert recs["slow"]["status"] == "failed" and recs["slow"]["error"]["error"] == "timeout"
+    assert recs["slow"]["attempts"] == 2
+    assert recs["quick-1"]["status"] == recs["quick-2"]["status"] == "ok"
+    # A failed job is tried again by the next run (it may have been the machine, not the job).
+    report = render_many(entries, tmp_path / "out", workers=1, timeout=3.0)
+    assert report.skipped == 2 and [r["id"] for r in report.records] == ["slow"]
+
+
+def test_cli(tmp_path):
+    manifest = write_manifest(tmp_path / "m.jsonl", [
+        {"id": "demo", "scene": {"builtin": "demo"},
+         "params": {**SIZE, "outputs": ["color", "depth"]}},
+        {"id": "bad", "scene": "missing.glb", "params": SIZE}])
+    run = [sys.executable, "-m", "shadowmap", "batch", str(manifest), "--out",
+           str(tmp_path / "out")]
+    proc = subprocess.run(run, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "1 ok, 1 error, 0 failed" in proc.stdout
+    assert "job/s" in proc.stderr  # tqdm's bar
+    assert "error: bad: invalid_scene" in proc.stderr
+    assert sorted(p.name for p in (tmp_path / "out" / "demo").iterdir()) == [
+        "color.png", "depth.npy", "depth.png", "meta.json"]
+    proc = subprocess.run(run + ["--quiet"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "2 already done" in proc.stdout
+    assert "job/s" not in proc.stderr
+    bad = subprocess.run([sys.executable, "-m", "shadowmap", "batch", str(tmp_path / "nope"),
+                          "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert bad.returncode == 2 and "shadowmap: error:" in bad.stderr
+
+
+def test_library_does_not_import_batch():
+    """The library is imported by batch, never the other way round."""
+    root = Path(__file__).resolve().parents[1] / "renderer"
+    if not root.is_dir():
+        pytest.skip("renderer/ is not beside the tests")
+    for path in root.rglob("*.py"):
+        text = path.read_text()
+        assert "shadowmap.batch" not in text and "from ..batch" not in text, path
