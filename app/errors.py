@@ -1,6 +1,7 @@
 """Error responses: every failure leaves the service as JSON ``{"error": ..., "detail": ...}``.
 
-The library's exceptions are mapped here, in one place, so routes never build error responses:
+The library's exceptions carry their own code and fields (``renderer/errors.py``); the statuses are
+given here, in one place, so routes never build error responses:
 
 ===========================  ======  ===========================================
 exception                    status  ``error``
@@ -32,19 +33,21 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from shadowmap.renderer import (
-    ExrUnavailable,
-    LimitError,
-    ReferenceUnavailable,
-    RenderError,
-    RequestError,
-    SceneError,
-    ShadowMapError,
-    UnsupportedExtension,
-    UnsupportedVersion,
-)
+from shadowmap.renderer import RequestError, ShadowMapError
 
 log = logging.getLogger("shadowmap.app")
+
+#: HTTP status of each library error code (:attr:`ShadowMapError.code`); a code not listed
+#: (``render_failed``) is 500.
+STATUS = {
+    "unsupported_extension": 422,
+    "unsupported_version": 422,
+    "invalid_scene": 400,
+    "invalid_request": 422,
+    "limit_exceeded": 422,
+    "reference_unavailable": 501,
+    "unavailable_feature": 422,
+}
 
 
 class FieldError(BaseModel):
@@ -172,51 +175,23 @@ def install_handlers(app: FastAPI) -> None:
         return error_response(exc.status, exc.error, exc.detail, limit=exc.limit,
                               headers=exc.headers)
 
-    # Registered before SceneError: Starlette picks the handler of the closest class in the MRO.
-    @app.exception_handler(UnsupportedExtension)
-    async def _extension(request: Request, exc: UnsupportedExtension) -> JSONResponse:
-        return error_response(422, "unsupported_extension", str(exc), extensions=exc.extensions)
-
-    @app.exception_handler(UnsupportedVersion)
-    async def _version(request: Request, exc: UnsupportedVersion) -> JSONResponse:
-        return error_response(422, "unsupported_version", str(exc), field=exc.field)
-
-    @app.exception_handler(SceneError)
-    async def _scene(request: Request, exc: SceneError) -> JSONResponse:
-        return error_response(400, "invalid_scene", str(exc))
-
-    @app.exception_handler(RequestError)
-    async def _request(request: Request, exc: RequestError) -> JSONResponse:
-        # Params that did not validate in the library keep pydantic's list of errors.
-        errors = [{"loc": [str(p) for p in e.get("loc", [])],  # type: ignore[attr-defined]
-                   "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
-                  for e in exc.errors]
-        for e in errors:
-            e["pointer"] = json_pointer(e["loc"])
-        return error_response(422, "invalid_request", str(exc), errors=errors or None)
-
-    @app.exception_handler(LimitError)
-    async def _limit(request: Request, exc: LimitError) -> JSONResponse:
-        return error_response(422, "limit_exceeded", str(exc), limit=exc.limit)
-
-    @app.exception_handler(ReferenceUnavailable)
-    async def _reference(request: Request, exc: ReferenceUnavailable) -> JSONResponse:
-        return error_response(501, "reference_unavailable", str(exc))
-
-    @app.exception_handler(ExrUnavailable)
-    async def _exr(request: Request, exc: ExrUnavailable) -> JSONResponse:
-        # As deps.check_service_limits refuses it before the render.
-        return error_response(422, "unavailable_feature", str(exc), field="/float_format")
-
-    @app.exception_handler(RenderError)
-    async def _render(request: Request, exc: RenderError) -> JSONResponse:
-        log.error("render failed: %s", exc, exc_info=exc)
-        return error_response(500, "render_failed", str(exc))
-
     @app.exception_handler(ShadowMapError)
     async def _library(request: Request, exc: ShadowMapError) -> JSONResponse:
-        log.error("renderer error: %s", exc, exc_info=exc)
-        return error_response(500, "render_failed", str(exc))
+        # The code and its fields come from the exception class (renderer/errors.py); only the
+        # status is decided here.
+        status = STATUS.get(exc.code, 500)
+        extra = exc.fields()
+        if isinstance(exc, RequestError):
+            # Params that did not validate in the library keep pydantic's list of errors.
+            errors = [{"loc": [str(p) for p in e.get("loc", [])],  # type: ignore[attr-defined]
+                       "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
+                      for e in exc.errors]
+            for e in errors:
+                e["pointer"] = json_pointer(e["loc"])
+            extra["errors"] = errors or None
+        if status >= 500:
+            log.error("render failed: %s", exc, exc_info=exc)
+        return error_response(status, exc.code, str(exc), **extra)
 
     @app.exception_handler(ValidationError)
     async def _params(request: Request, exc: ValidationError) -> JSONResponse:

@@ -1,7 +1,8 @@
 """A failed job as data: the error code and detail that ``results.jsonl`` records.
 
-The codes are the HTTP service's (``invalid_scene``, ``invalid_params``, ``limit_exceeded``, ...),
-so a job fails in a batch with the same name it would fail with over HTTP, plus the batch's own:
+The codes are the library's (:attr:`ShadowMapError.code`, which the HTTP service answers with too:
+``invalid_scene``, ``limit_exceeded``, ...), so a job fails in a batch with the same name it would
+fail with over HTTP, plus the batch's own:
 ``invalid_job`` (a manifest line that is not a job), ``worker_died`` (its worker process or
 actor died twice) and ``timeout`` (it ran past the batch's time limit twice).
 """
@@ -10,16 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from shadowmap.renderer.errors import (
-    LimitError,
-    ReferenceUnavailable,
-    RenderError,
-    RequestError,
-    SceneError,
-    ShadowMapError,
-    UnsupportedExtension,
-    UnsupportedVersion,
-)
+from shadowmap.renderer.errors import ShadowMapError
 
 __all__ = ["JobError", "error_of"]
 
@@ -59,18 +51,6 @@ def error_of(exc: BaseException) -> JobError:
     if isinstance(exc, JobError):
         return exc
     text = " ".join(str(exc).splitlines()) or type(exc).__name__
-    if isinstance(exc, UnsupportedExtension):
-        return JobError("unsupported_extension", text, extensions=exc.extensions)
-    if isinstance(exc, UnsupportedVersion):
-        return JobError("unsupported_version", text, field=exc.field)
-    if isinstance(exc, SceneError):
-        return JobError("invalid_scene", text)
-    if isinstance(exc, RequestError):
-        return JobError("invalid_request", text, errors=exc.errors or None)
-    if isinstance(exc, LimitError):
-        return JobError("limit_exceeded", text, limit=exc.limit)
-    if isinstance(exc, ReferenceUnavailable):
-        return JobError("reference_unavailable", text)
-    if isinstance(exc, (RenderError, ShadowMapError)):
-        return JobError("render_failed", text)
+    if isinstance(exc, ShadowMapError):
+        return JobError(exc.code, text, **exc.fields())
     return JobError("internal_error", f"{type(exc).__name__}: {text}")
