@@ -72,7 +72,7 @@ def run(quick: bool, repeats: int) -> None:
     t_start = time.perf_counter()
     rows, csv_rows, notes = [], [], []
     mask_scene = "none"
-    r = Renderer()
+    r = Renderer(map_cache_bytes=0)  # every shadowed frame draws its light pass
     pb = C.PyrenderBaseline(C.WIDTH, C.HEIGHT)
     try:
         bar = C.Progress(len(bench_scenes), "shadow_cost")

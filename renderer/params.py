@@ -428,17 +428,20 @@ class BiasParams(_Model):
     The compare uses ``receiver_depth - bias <= stored_depth`` with
     ``bias = texel * (constant + slope * min(tan(acos(N·L)), slope_max)) + quantisation``, where
     ``texel`` is the world size of one shadow-map texel at the receiver and ``quantisation`` is
-    ``quantisation_steps`` steps of the depth encoding. ``normal_offset`` moves the lookup point
-    along the surface normal by that many texels (scaled by sin of the light angle), and
+    ``quantisation_steps`` steps of the depth encoding. Every texel a lookup reads is compared
+    against the receiver's plane at that texel's centre, where the light pass stored its depth,
+    so a planar receiver needs no slope term to stay free of acne: ``slope`` covers curved
+    surfaces, whose neighbouring triangles leave their plane. ``normal_offset`` moves the lookup
+    point along the surface normal by that many texels (scaled by sin of the light angle), and
     ``polygon_offset`` adds ``factor × depth slope + units × encoding step`` to the stored depth in
     the light pass (glPolygonOffset's formula).
     """
 
     constant: float = Field(default=0.5, ge=0.0, le=100.0,
                             description="constant bias, texels", examples=[0.5])
-    slope: float = Field(default=1.0, ge=0.0, le=100.0,
+    slope: float = Field(default=0.25, ge=0.0, le=100.0,
                          description="slope-scaled bias, texels per unit tan(angle to the light)",
-                         examples=[1.0])
+                         examples=[0.25])
     slope_max: float = Field(default=10.0, gt=0.0, le=1000.0,
                              description="largest tan(angle) the slope term uses (unitless)",
                              examples=[10.0])

@@ -22,7 +22,6 @@
 #define ENCODING ENC_DEPTH  // how the maps store depth
 #define FILTER_PCF 0        // the PCF loop (of PCF_RADIUS taps either side)
 #define PCF_RADIUS 0
-#define HW_PCF 0            // depth-texture maps with bilinear hardware compare
 #define NORMAL_OFFSET 0     // lookups moved along the normal
 
 #include "chunks/lighting.glsl"

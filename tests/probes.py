@@ -11,7 +11,7 @@ from shadowmap.renderer.gl.resources import Framebuffer
 PROBE_VERT = "fullscreen.vert"
 
 
-def _texture(data: np.ndarray, internal, fmt, typ, compare=False) -> int:
+def _texture(data: np.ndarray, internal, fmt, typ) -> int:
     h, w = data.shape[:2]
     tex = GL.glGenTextures(1)
     GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
@@ -22,10 +22,6 @@ def _texture(data: np.ndarray, internal, fmt, typ, compare=False) -> int:
         GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_NEAREST)
     for p in (GL.GL_TEXTURE_WRAP_S, GL.GL_TEXTURE_WRAP_T):
         GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_CLAMP_TO_EDGE)
-    if compare:
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_MODE,
-                           GL.GL_COMPARE_REF_TO_TEXTURE)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_FUNC, GL.GL_LEQUAL)
     return tex
 
 
@@ -92,17 +88,19 @@ def gpu_decode(renderer, rgba: np.ndarray, encoding: str) -> np.ndarray:
 
 
 def gpu_compare(renderer, depth_map: np.ndarray, queries: np.ndarray, encoding: str,
-                pcf_radius: int = 0) -> np.ndarray:
-    """shadow_2d() for each query (u, v, ref) against a depth map (S, S) of linear depths."""
+                pcf_radius: int = 0, dref_v: float = 0.0) -> np.ndarray:
+    """shadow_2d() for each query (u, v, ref) or (u, v, ref, dref_u) against a depth map (S, S)
+    of linear depths; ``dref`` is the receiver plane's depth change per texel along u and v."""
     s = depth_map.shape[0]
     if encoding == "depth":
         map_tex = _texture(depth_map.astype(np.float32), GL.GL_DEPTH_COMPONENT32F,
-                           GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, compare=True)
+                           GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
     else:
         map_tex = _texture(encodings.encode(depth_map, encoding), GL.GL_RGBA8, GL.GL_RGBA,
                            GL.GL_UNSIGNED_BYTE)
     q = np.zeros((1, len(queries), 4), np.float32)
-    q[0, :, :3] = queries
+    queries = np.asarray(queries, np.float32)
+    q[0, :, :queries.shape[1]] = queries
     q_tex = _texture(q, GL.GL_RGBA32F, GL.GL_RGBA, GL.GL_FLOAT)
     try:
         defines = {"ENCODING": encodings.ENCODING_ID[encoding], "FILTER_PCF": int(pcf_radius > 0),
@@ -110,7 +108,7 @@ def gpu_compare(renderer, depth_map: np.ndarray, queries: np.ndarray, encoding: 
         out = _run(renderer, "compare_probe.frag", defines,
                    {"u_map": map_tex, "u_queries": q_tex}, len(queries), 1,
                    (GL.GL_R32F, GL.GL_RED, GL.GL_FLOAT, 1, np.float32),
-                   uniforms={"u_map_size": float(s)} if pcf_radius else None)
+                   uniforms={"u_map_size": float(s), "u_dref_v": float(dref_v)})
         return out[0, :, 0]
     finally:
         GL.glDeleteTextures([map_tex, q_tex])

@@ -103,9 +103,34 @@ def test_pcf_counts_texels_in_front_of_the_receiver(renderer, encoding):
 
 
 @pytest.mark.gl
-def test_depth_texture_compare_is_hardware_leq(renderer):
+def test_depth_texture_compare_is_leq(renderer):
     from probes import gpu_compare
 
     u, v = _centre(0, 0)
     got = gpu_compare(renderer, MAP3, np.array([(u, v, 0.2), (u, v, 0.2 + 1e-4)]), "depth")
     np.testing.assert_array_equal(got, [1.0, 0.0])
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("encoding", ["depth", "rgba8", "rgb8"])
+@pytest.mark.parametrize("pcf_radius", [0, 1, 2])
+def test_receiver_plane_meets_its_own_depth_at_every_texel(renderer, encoding, pcf_radius):
+    """A tilted plane stored at texel centres and looked up anywhere on that plane, with its
+    slope and no bias at all: every texel the filter reads is compared against the plane at that
+    texel's own centre, so the plane is lit everywhere, and shadowed just behind itself."""
+    from probes import gpu_compare
+
+    s, base, du, dv = 16, 0.3, 0.01, 0.02  # depth change per texel along u and v
+    i, j = np.mgrid[0:s, 0:s]
+    plane = base + du * (j + 0.5) + dv * (i + 0.5)
+    uv = np.random.default_rng(3).uniform(0.2, 0.8, (64, 2))
+    on = base + du * uv[:, 0] * s + dv * uv[:, 1] * s
+    step = max(encodings.STEP[encoding], 1e-6) * 2
+    for offset, want in ((-step, 1.0), (8 * step + 1e-4, 0.0)):
+        q = np.c_[uv, on + offset, np.full(len(uv), du)]
+        got = gpu_compare(renderer, plane, q, encoding, pcf_radius=pcf_radius, dref_v=dv)
+        np.testing.assert_allclose(got, want, atol=1e-6)
+    # Without the slope, half the texels around a lookup lie in front of it: acne.
+    q = np.c_[uv, on - step, np.zeros(len(uv))]
+    flat = gpu_compare(renderer, plane, q, encoding, pcf_radius=pcf_radius)
+    assert flat.mean() < 0.9

@@ -549,8 +549,8 @@ class Framebuffer:
     """
 
     def __init__(self, width: int, height: int, colors: Sequence[tuple[int, int, int]],
-                 depth: tuple[int, bool] | None, cube: bool = False, depth_compare: bool = False,
-                 linear: bool = False, layers: int = 0) -> None:
+                 depth: tuple[int, bool] | None, cube: bool = False,
+                 layers: int = 0) -> None:
         self.width, self.height, self.cube, self.layers = width, height, cube, layers
         # What the attachments hold (caches bound their size by it).
         texels = width * height * (6 if cube else 1) * max(layers, 1)
@@ -580,18 +580,16 @@ class Framebuffer:
                 self.color_textures.append(tex)
                 GL.glBindTexture(target, tex)
                 storage(internal, fmt, typ)
-                _sampling(target, linear=False)
+                _sampling(target)
             if depth is not None:
                 internal, as_texture = depth
                 if as_texture:
                     self.depth_texture = GL.glGenTextures(1)
                     GL.glBindTexture(target, self.depth_texture)
                     storage(internal, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
-                    _sampling(target, linear=linear)
-                    if depth_compare:
-                        GL.glTexParameteri(target, GL.GL_TEXTURE_COMPARE_MODE,
-                                           GL.GL_COMPARE_REF_TO_TEXTURE)
-                        GL.glTexParameteri(target, GL.GL_TEXTURE_COMPARE_FUNC, GL.GL_LEQUAL)
+                    # Read as plain depths, nearest: the camera pass compares every texel
+                    # against the receiver's plane at that texel (chunks/shadow_lookup.glsl).
+                    _sampling(target)
                 else:
                     self.depth_renderbuffer = GL.glGenRenderbuffers(1)
                     GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self.depth_renderbuffer)
@@ -688,8 +686,8 @@ class Framebuffer:
             self.fbo = 0
 
 
-def _sampling(target: int, linear: bool) -> None:
-    f = GL.GL_LINEAR if linear else GL.GL_NEAREST
+def _sampling(target: int) -> None:
+    f = GL.GL_NEAREST
     GL.glTexParameteri(target, GL.GL_TEXTURE_MIN_FILTER, f)
     GL.glTexParameteri(target, GL.GL_TEXTURE_MAG_FILTER, f)
     GL.glTexParameteri(target, GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE)

@@ -224,6 +224,18 @@ class CameraPass:
             self._white = 0
 
 
+def _texel_axes(proj: np.ndarray) -> tuple[float, float]:
+    """A map's texel along its x and y axes over its larger side (the plan's ``texel``): 1 and 1
+    for a square fit, less than 1 along the shorter side of an oblong one.
+
+    glOrtho and glFrustum put 2 / width at ``proj[0, 0]`` and 2 / height at ``proj[1, 1]`` (world
+    units, or slopes for a frustum), so the ratio of sides is the inverse ratio of the two.
+    """
+    x, y = abs(float(proj[0, 0])), abs(float(proj[1, 1]))
+    m = min(x, y)
+    return (m / x, m / y)
+
+
 def _family(m: ShadowMap) -> str:
     """Which of the camera pass's map families samples ``m``: "2d", "cube" or "csm"."""
     if m.plan.cascades:
@@ -289,7 +301,6 @@ class _FrameState:
             "ENCODING": encodings.ENCODING_ID[shadows.encoding],
             "FILTER_PCF": self.pcf,
             "PCF_RADIUS": self.pcf_radius,
-            "HW_PCF": shadows.encoding == "depth" and shadows.filter == "pcf",
             "NORMAL_OFFSET": bool(self.maps) and shadows.bias.normal_offset > 0,
             "LOC_MODEL": gp.loc_model,
         }
@@ -339,11 +350,11 @@ class _FrameState:
         if two_d:
             prog.set("u_map2d", [units[self.maps.index(m)] for m in two_d])
             prog.set("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d])
-            if self.pcf_radius > 0:
-                prog.set("u_map2d_view", [m.plan.view for m in two_d])
+            prog.set("u_map2d_view", [m.plan.view for m in two_d])
             prog.set("u_map2d_range",
                      [(m.plan.near, m.plan.far, 0.0, m.plan.map_size) for m in two_d])
             prog.set("u_map2d_texel", [m.plan.texel for m in two_d])
+            prog.set("u_map2d_axes", [_texel_axes(m.plan.proj) for m in two_d])
         if cubes:
             prog.set("u_mapcube", [units[self.maps.index(m)] for m in cubes])
             prog.set("u_mapcube_position", [m.plan.position for m in cubes])
@@ -354,14 +365,14 @@ class _FrameState:
         """Per cascaded light, its array texture and size; per cascade (``slot * MAX_CASCADES
         + k``, unused entries left as they are), its matrices, depth range, texel and split."""
         prog.set("u_mapcsm", [units[self.maps.index(m)] for m in cascaded])
-        if self.pcf:  # only the PCF loop reads the size (its tap offsets)
-            prog.set("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded])
+        prog.set("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded])
         prog.set("u_camera_forward", -self.plan.camera.pose[:3, 2])
         n = len(cascaded) * MAX_CASCADES
         matrix = np.tile(np.eye(4), (n, 1, 1))
         view = np.tile(np.eye(4), (n, 1, 1))
         rng = np.tile([0.0, 1.0], (n, 1))
         texel = np.ones(n)
+        axes = np.ones((n, 2))
         split = np.zeros((n, 2))
         for s, m in enumerate(cascaded):
             for k, c in enumerate(m.plan.cascades):
@@ -370,10 +381,11 @@ class _FrameState:
                 view[j] = c.view
                 rng[j] = (c.near, c.far)
                 texel[j] = c.texel[0]
+                axes[j] = _texel_axes(c.proj)
                 split[j] = (min(c.split[1], 3e38), c.blend)
         prog.set("u_csm_matrix", list(matrix))
-        if self.pcf_radius > 0:
-            prog.set("u_csm_view", list(view))
+        prog.set("u_csm_view", list(view))
         prog.set("u_csm_range", list(rng))
         prog.set("u_csm_texel", list(texel))
+        prog.set("u_csm_axes", list(axes))
         prog.set("u_csm_split", list(split))

@@ -78,13 +78,14 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
 
     A map is a function of the scene's geometry (its key, and the upload's origin the matrices
     are relative to), the map's fit (views, projections, depth range, size, faces, casters) and
-    the settings the light pass reads (encoding, filtering, polygon offset) — not of the camera:
-    two renders whose plans fit a light alike draw the same texels.
+    the settings the light pass reads (encoding, polygon offset) — not of the camera, nor of the
+    filter the camera pass reads it with: two renders whose plans fit a light alike draw the
+    same texels.
     """
     if not scene_key:
         return ""
     parts: list[bytes] = [scene_key.encode(), np.asarray(origin, np.float64).tobytes(),
-                          repr((shadows.encoding, shadows.filter, shadows.bias.polygon_offset,
+                          repr((shadows.encoding, shadows.bias.polygon_offset,
                                 lp.kind, len(lp.cascades))).encode()]
     for m in lp.maps:
         parts += [m.view.tobytes(), m.proj.tobytes(), *(v.tobytes() for v in m.face_views),
@@ -94,7 +95,7 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
 
 
 class LightPass:
-    """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, filter)
+    """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, layers)
     and a cache of drawn maps by :func:`map_key`.
 
     Parameters
@@ -127,14 +128,14 @@ class LightPass:
         self._trim(self._taken)
 
     def _framebuffer(self, key: tuple, taken: set[int]) -> Framebuffer:
-        kind, size, encoding, linear, layers = key
+        kind, size, encoding, layers = key
         for fb in self.pool.get(key, []):
             if id(fb) not in taken:
                 return fb
         cube = kind == "cube"
         if encoding == "depth":
             fb = Framebuffer(size, size, [], (GL.GL_DEPTH_COMPONENT32F, True), cube=cube,
-                             depth_compare=True, linear=linear, layers=layers)
+                             layers=layers)
         elif layers:
             # Each layer needs its own depth test: a layered depth texture, not a renderbuffer.
             fb = Framebuffer(size, size, [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)],
@@ -175,7 +176,6 @@ class LightPass:
         maps = []
         self.variants = set()
         taken = self._taken = set()
-        linear = shadows.encoding == "depth" and shadows.filter == "pcf"
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
@@ -192,7 +192,7 @@ class LightPass:
                 taken.add(id(hit[1]))
                 maps.append(ShadowMap(lp, hit[1], shadows.encoding, cached=True))
                 continue
-            pool_key = (lp.kind, size, shadows.encoding, linear, layers)
+            pool_key = (lp.kind, size, shadows.encoding, layers)
             fb = self._framebuffer(pool_key, taken)
             taken.add(id(fb))
             # (target, plan, view): every cube face, every cascade's layer, or the one map.

@@ -1,7 +1,7 @@
 // Shading terms of the camera pass: sRGB conversions, the lights' falloff, and the depth bias.
 //
 // The including stage declares NUM_LIGHTS, LIGHT_TYPES, HAS_SPOT, HAS_POSITIONAL, NUM_MAPS_2D,
-// NUM_MAPS_CUBE, NUM_MAPS_CSM and HW_PCF.
+// NUM_MAPS_CUBE and NUM_MAPS_CSM.
 
 vec3 srgb_to_linear(vec3 c) {
     return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
@@ -56,14 +56,14 @@ float light_attenuation(int i, vec3 p, out vec3 l) {
 #if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0 || NUM_MAPS_CSM > 0
 uniform vec4 u_bias;         // constant, slope, slope max, normal offset (texels)
 uniform float u_bias_steps;  // quantisation bias in steps of the encoding
+// Steepest receiver plane (tan of its angle to the light) the per-texel comparison follows; the
+// bias's own slope term stops at slope_max. A plane compared at each texel's centre is exact at
+// any angle, so this only guards against a normal edge-on to the light (tan 100: 89.4 degrees).
+const float PLANE_SLOPE_MAX = 100.0;
 
 // Depth bias in world units at a receiver whose texel has world size `texel`, for a surface at
 // angle acos(cos_l) to the light: a texel-sized constant plus the depth change across a texel.
 float bias_world(float texel, float tan_l) {
-    float slope = min(tan_l, u_bias.z);
-#if HW_PCF
-    slope *= 2.0;  // bilinear compare reaches one texel further
-#endif
-    return texel * (u_bias.x + u_bias.y * slope);
+    return texel * (u_bias.x + u_bias.y * min(tan_l, u_bias.z));
 }
 #endif

@@ -9,10 +9,12 @@
 in vec4 v_map2d[NUM_MAPS_2D];              // u_map2d_matrix x world, from camera_pass.vert
 uniform MAP2D u_map2d[NUM_MAPS_2D];
 uniform mat4 u_map2d_matrix[NUM_MAPS_2D];  // world -> biased light clip (normal offset)
-uniform mat4 u_map2d_view[NUM_MAPS_2D];    // world -> light view (receiver-plane PCF)
+uniform mat4 u_map2d_view[NUM_MAPS_2D];    // world -> light view (receiver plane)
 uniform vec4 u_map2d_range[NUM_MAPS_2D];   // near, far, unused, map size
 // World size of a texel at light depth d: x + y * d (orthographic: y = 0; perspective: x = 0).
 uniform vec2 u_map2d_texel[NUM_MAPS_2D];
+// A texel along the map's x and y axes over that size (< 1 along the shorter side of an oblong fit).
+uniform vec2 u_map2d_axes[NUM_MAPS_2D];
 
 // Shadow of the receiver at p in 2D map m. `c` is the interpolated light coordinate from the
 // vertex shader (bias matrix applied: xy in [0, 1]; for orthographic maps z is the linear depth
@@ -31,8 +33,7 @@ float visibility_2d_from(MAP2D map, vec4 c, int m, vec3 p, vec3 ng, float cos_l,
     float t = persp > 0.0 ? (c.w - range.x) / span : c.z;
     float texel = u_map2d_texel[m].x + persp * c.w;
     float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
-#if PCF_RADIUS > 0
-    // Depth of the receiver's plane along a tap moved by one texel (dx, dy) across the map:
+    // Depth of the receiver's plane at a point moved by one texel (dx, dy) across the map:
     // orthographic rays change it by (n.x dx + n.y dy) / n.z, perspective rays through the light
     // by -depth (n.x dx + n.y dy) / (n . p) (both to first order).
     vec3 nl = mat3(u_map2d_view[m]) * ng;
@@ -41,10 +42,7 @@ float visibility_2d_from(MAP2D map, vec4 c, int m, vec3 p, vec3 ng, float cos_l,
         vec3 pv = (u_map2d_view[m] * vec4(p, 1.0)).xyz;
         slope = -c.w * nl.xy / min(dot(nl, pv), -1e-30);
     }
-    vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
-#else
-    vec2 dref = vec2(0.0);
-#endif
+    vec2 dref = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_map2d_axes[m] * (texel / span);
     return shadow_2d(map, uv, ref, dref, range.w);
 }
 

@@ -12,7 +12,8 @@ uniform MAPARRAY u_mapcsm[NUM_MAPS_CSM];
 uniform mat4 u_csm_matrix[NUM_MAPS_CSM * MAX_CASCADES];  // world -> biased light clip
 uniform mat4 u_csm_view[NUM_MAPS_CSM * MAX_CASCADES];    // world -> light view (receiver plane)
 uniform vec2 u_csm_range[NUM_MAPS_CSM * MAX_CASCADES];   // near, far of the stored depth
-uniform float u_csm_texel[NUM_MAPS_CSM * MAX_CASCADES];  // world size of one texel
+uniform float u_csm_texel[NUM_MAPS_CSM * MAX_CASCADES];  // world size of one texel (larger side)
+uniform vec2 u_csm_axes[NUM_MAPS_CSM * MAX_CASCADES];    // a texel along x and y over that size
 // Camera distances along the view axis: where each cascade ends, and the band before that
 // end over which it fades into the next one.
 uniform vec2 u_csm_split[NUM_MAPS_CSM * MAX_CASCADES];
@@ -34,12 +35,9 @@ float visibility_layer(MAPARRAY map, int j, float layer, float size, vec3 p, vec
     vec2 range = u_csm_range[j];
     float span = range.y - range.x;
     float ref = c.z - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
-#if PCF_RADIUS > 0
     vec3 nl = mat3(u_csm_view[j]) * ng;
-    vec2 dref = clamp(nl.xy / max(nl.z, 1e-6), -u_bias.z, u_bias.z) * (texel / span);
-#else
-    vec2 dref = vec2(0.0);
-#endif
+    vec2 dref = clamp(nl.xy / max(nl.z, 1e-6), -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_csm_axes[j]
+        * (texel / span);
     return shadow_layer(map, uv, layer, ref, dref, size);
 }
 

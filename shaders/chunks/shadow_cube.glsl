@@ -13,7 +13,7 @@ uniform vec3 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size
 // The shadow lookup in cube map m, one case per slot (see visibility_2d in chunks/shadow_2d.glsl):
 // constant sampler-array indices only.
 #define MAPCUBE_SLOT(K) min(K, NUM_MAPS_CUBE - 1)
-#define MAPCUBE_CASE(K) if (K < NUM_MAPS_CUBE && m == K) return shadow_cube(u_mapcube[MAPCUBE_SLOT(K)], d, ref, dref, u * texel, v * texel);
+#define MAPCUBE_CASE(K) if (K < NUM_MAPS_CUBE && m == K) return shadow_cube(u_mapcube[MAPCUBE_SLOT(K)], major, s_axis, t_axis, uv, ref, dref, range.z);
 
 // Shadow of the receiver at p in cube map m.
 float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
@@ -28,27 +28,18 @@ float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     a = abs(d);
     depth = max(a.x, max(a.y, a.z));
 #endif
-    // The face's two lateral axes.
-    vec3 u;
-    vec3 v;
-    if (a.x >= a.y && a.x >= a.z) {
-        u = vec3(0.0, 1.0, 0.0); v = vec3(0.0, 0.0, 1.0);
-    } else if (a.y >= a.z) {
-        u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 0.0, 1.0);
-    } else {
-        u = vec3(1.0, 0.0, 0.0); v = vec3(0.0, 1.0, 0.0);
-    }
+    vec3 major;
+    vec3 s_axis;
+    vec3 t_axis;
+    vec2 uv;
+    cube_face(d, major, s_axis, t_axis, uv);
     float span = range.y - range.x;
     float t = (depth - range.x) / span;
     float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
-#if PCF_RADIUS > 0
-    // A tap moved by w across the face meets the receiver's plane at face depth
+    // A point moved by w across the face meets the receiver's plane at face depth
     // depth (n . d) / (n . (d + w)): to first order a change of -depth (n . w) / (n . d).
-    vec2 slope = -depth * vec2(dot(ng, u), dot(ng, v)) / min(dot(ng, d), -1e-30);
-    vec2 dref = clamp(slope, -u_bias.z, u_bias.z) * (texel / span);
-#else
-    vec2 dref = vec2(0.0);
-#endif
+    vec2 slope = -depth * vec2(dot(ng, s_axis), dot(ng, t_axis)) / min(dot(ng, d), -1e-30);
+    vec2 dref = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * (texel / span);
     FOR_EACH_SLOT(MAPCUBE_CASE)
     return 1.0;
 }

@@ -1,89 +1,184 @@
 // Shadow-map lookups: 1 where the receiver is lit, 0 where a caster is in front of it, fractions
-// with PCF. `ref` is the receiver's linear light depth minus its bias; `dref` is how `ref` changes
-// per texel of offset along the map's two axes (receiver-plane depth bias), so every PCF tap is
-// compared against the receiver's own plane instead of a bias widened for the whole kernel.
+// with PCF. `ref` is the receiver's linear light depth minus its bias at the lookup point; `dref`
+// is how the receiver's plane moves per texel along the map's two axes. Every texel read is
+// compared against the receiver's plane at that texel's own centre (receiver-plane depth bias,
+// taken to the texel): the light pass stored depth at texel centres, so a planar receiver meets
+// its own stored depth exactly there and needs no slope-scaled bias to stay free of acne, and a
+// caster just above it (a decal, a lip) still shadows it.
+//
+// The maps are read as plain textures (no hardware compare): a depth texture's value is the
+// linear depth itself, a byte encoding's is decoded (chunks/depth_encoding.glsl).
+//   hard filter: the texel under the lookup point.
+//   PCF, depth encoding: (2R+2)^2 texels, gathered four at a time, weighted like (2R+1)^2
+//       bilinear taps (a tent: 1 - f, 1, ..., 1, f per axis).
+//   PCF, byte encodings: (2R+1)^2 texels under as many taps, equal weights (bytes do not
+//       interpolate).
 //
 // The including stage declares ENCODING, FILTER_PCF and PCF_RADIUS.
 #include "chunks/depth_encoding.glsl"
 
-#if ENCODING == ENC_DEPTH
-#define MAP2D sampler2DShadow
-#define MAPCUBE samplerCubeShadow
-#define MAPARRAY sampler2DArrayShadow
-#else
 #define MAP2D sampler2D
 #define MAPCUBE samplerCube
 #define MAPARRAY sampler2DArray
+
+#if ENCODING == ENC_DEPTH
+#define STORED(v) (v).r
+#else
+#define STORED(v) decode_depth(v)
 #endif
 
-float compare_2d(MAP2D map, vec2 uv, float ref) {
-#if ENCODING == ENC_DEPTH
-    // Level 0 given: the map has no mipmaps, and llvmpipe then skips the derivatives.
-    return textureLod(map, vec3(uv, ref), 0.0);  // GL_COMPARE_REF_TO_TEXTURE, GL_LEQUAL
-#else
-    return step(ref, decode_depth(textureLod(map, uv, 0.0)));
-#endif
+// Lit (1) where the receiver's plane lies at or in front of the stored depth.
+float lit(float ref, float stored) {
+    return step(ref, stored);
+}
+
+// Four texels' lit values from a gathered quad (textureGather's order: x (0, 1), y (1, 1),
+// z (1, 0), w (0, 0) in texels from the quad's lower-left texel). `f` is the lookup point's
+// position past that texel's centre, in texels, for the quad at offset `o` from the lookup.
+vec4 lit_quad(vec4 stored, float ref, vec2 dref, vec2 f, vec2 o) {
+    vec4 dx = vec4(0.0, 1.0, 1.0, 0.0) + (o.x - f.x);
+    vec4 dy = vec4(1.0, 1.0, 0.0, 0.0) + (o.y - f.y);
+    return step(ref + dref.x * dx + dref.y * dy, stored);
+}
+
+// Tent weights of a gathered quad whose lower-left texel is `k` texels (per axis) from the first
+// texel of the (2R+2)-texel footprint: 1 - f for the first texel, f for the last, 1 between.
+vec4 tent_quad(vec2 k, vec2 f) {
+    float last = float(2 * PCF_RADIUS + 1);
+    vec2 w0 = mix(vec2(1.0), 1.0 - f, equal(k, vec2(0.0)));
+    vec2 w1 = mix(vec2(1.0), f, equal(k + 1.0, vec2(last)));
+    return vec4(w0.x * w1.y, w1.x * w1.y, w1.x * w0.y, w0.x * w0.y);
 }
 
 float shadow_2d(MAP2D map, vec2 uv, float ref, vec2 dref, float size) {
-#if FILTER_PCF
+    vec2 st = uv * size;
+#if FILTER_PCF && ENCODING == ENC_DEPTH
+    vec2 f = fract(st - 0.5);
+    vec2 corner = floor(st - 0.5) + 1.0;  // texel coordinates of the shared corner
     float sum = 0.0;
-    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
-        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
+    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
+        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
-            sum += compare_2d(map, uv + o / size, ref + dot(dref, o));
+            vec4 stored = textureGather(map, (corner + o) / size);
+            sum += dot(lit_quad(stored, ref, dref, f, o), tent_quad(o + float(PCF_RADIUS), f));
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
 #else
-    return compare_2d(map, uv, ref);
+    ivec2 texel = ivec2(clamp(floor(st), 0.0, size - 1.0));
+    vec2 c = floor(st) + 0.5 - st;  // the texel centre from the lookup point
+#if FILTER_PCF
+    float sum = 0.0;
+    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
+        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
+            ivec2 o = ivec2(x, y);
+            ivec2 at = clamp(texel + o, ivec2(0), ivec2(int(size) - 1));
+            sum += lit(ref + dot(dref, vec2(o) + c), STORED(texelFetch(map, at, 0)));
+        }
+    }
+    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+#else
+    return lit(ref + dot(dref, c), STORED(texelFetch(map, texel, 0)));
+#endif
 #endif
 }
 
 // The same on layer `layer` of an array map (cascades).
-float compare_layer(MAPARRAY map, vec2 uv, float layer, float ref) {
-#if ENCODING == ENC_DEPTH
-    return textureGrad(map, vec4(uv, layer, ref), vec2(0.0), vec2(0.0));  // level 0, as above
-#else
-    return step(ref, decode_depth(textureLod(map, vec3(uv, layer), 0.0)));
-#endif
-}
-
 float shadow_layer(MAPARRAY map, vec2 uv, float layer, float ref, vec2 dref, float size) {
+    vec2 st = uv * size;
+#if FILTER_PCF && ENCODING == ENC_DEPTH
+    vec2 f = fract(st - 0.5);
+    vec2 corner = floor(st - 0.5) + 1.0;
+    float sum = 0.0;
+    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
+        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
+            vec2 o = vec2(float(x), float(y));
+            vec4 stored = textureGather(map, vec3((corner + o) / size, layer));
+            sum += dot(lit_quad(stored, ref, dref, f, o), tent_quad(o + float(PCF_RADIUS), f));
+        }
+    }
+    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+#else
+    ivec2 texel = ivec2(clamp(floor(st), 0.0, size - 1.0));
+    vec2 c = floor(st) + 0.5 - st;
+    int l = int(layer);
+#if FILTER_PCF
+    float sum = 0.0;
+    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
+        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
+            ivec2 o = ivec2(x, y);
+            ivec2 at = clamp(texel + o, ivec2(0), ivec2(int(size) - 1));
+            sum += lit(ref + dot(dref, vec2(o) + c), STORED(texelFetch(map, ivec3(at, l), 0)));
+        }
+    }
+    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+#else
+    return lit(ref + dot(dref, c), STORED(texelFetch(map, ivec3(texel, l), 0)));
+#endif
+#endif
+}
+
+// A cube map's face as seen from a lookup direction: `s_axis`, `t_axis` are the world directions
+// in which the face's s and t grow (the cube-map face table of the GL specification), `st` the
+// lookup's face coordinates in [0, 1].
+void cube_face(vec3 dir, out vec3 major, out vec3 s_axis, out vec3 t_axis, out vec2 st) {
+    vec3 a = abs(dir);
+    if (a.x >= a.y && a.x >= a.z) {
+        float sg = sign(dir.x);
+        major = vec3(dir.x, 0.0, 0.0);
+        s_axis = vec3(0.0, 0.0, -sg);
+        t_axis = vec3(0.0, -1.0, 0.0);
+    } else if (a.y >= a.z) {
+        float sg = sign(dir.y);
+        major = vec3(0.0, dir.y, 0.0);
+        s_axis = vec3(1.0, 0.0, 0.0);
+        t_axis = vec3(0.0, 0.0, sg);
+    } else {
+        float sg = sign(dir.z);
+        major = vec3(0.0, 0.0, dir.z);
+        s_axis = vec3(sg, 0.0, 0.0);
+        t_axis = vec3(0.0, -1.0, 0.0);
+    }
+    float ma = max(a.x, max(a.y, a.z));
+    st = vec2(dot(dir, s_axis), dot(dir, t_axis)) / ma * 0.5 + 0.5;
+}
+
+// The lookup at face coordinates `uv` of the face given by cube_face(); `dref` per texel along the
+// face's s and t axes, `size` texels per side.
+float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, float ref,
+                  vec2 dref, float size) {
+    float ma = length(major);
+    vec2 st = uv * size;
+    // The direction through face texel coordinates (x, y).
+#define CUBE_DIR(c) (major + (s_axis * ((c).x / size * 2.0 - 1.0) + t_axis * ((c).y / size * 2.0 - 1.0)) * ma)
+#if FILTER_PCF && ENCODING == ENC_DEPTH
+    vec2 f = fract(st - 0.5);
+    vec2 corner = floor(st - 0.5) + 1.0;
+    float sum = 0.0;
+    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
+        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
+            vec2 o = vec2(float(x), float(y));
+            vec4 stored = textureGather(map, CUBE_DIR(corner + o));
+            sum += dot(lit_quad(stored, ref, dref, f, o), tent_quad(o + float(PCF_RADIUS), f));
+        }
+    }
+    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+#else
+    // Nearest-filtered reads at texel centres (cube maps have no texelFetch).
+    vec2 texel = floor(st);
+    vec2 c = texel + 0.5 - st;
 #if FILTER_PCF
     float sum = 0.0;
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
             vec2 o = vec2(float(x), float(y));
-            sum += compare_layer(map, uv + o / size, layer, ref + dot(dref, o));
+            float stored = STORED(textureLod(map, CUBE_DIR(texel + 0.5 + o), 0.0));
+            sum += lit(ref + dot(dref, o + c), stored);
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
 #else
-    return compare_layer(map, uv, layer, ref);
+    return lit(ref + dot(dref, c), STORED(textureLod(map, CUBE_DIR(texel + 0.5), 0.0)));
 #endif
-}
-
-float compare_cube(MAPCUBE map, vec3 dir, float ref) {
-#if ENCODING == ENC_DEPTH
-    return textureGrad(map, vec4(dir, ref), vec3(0.0), vec3(0.0));  // level 0, as above
-#else
-    return step(ref, decode_depth(textureLod(map, dir, 0.0)));
-#endif
-}
-
-// `axis_u`, `axis_v`: the face's two axes scaled to one texel at the receiver's face depth.
-float shadow_cube(MAPCUBE map, vec3 dir, float ref, vec2 dref, vec3 axis_u, vec3 axis_v) {
-#if FILTER_PCF
-    float sum = 0.0;
-    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
-        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
-            vec2 o = vec2(float(x), float(y));
-            sum += compare_cube(map, dir + o.x * axis_u + o.y * axis_v, ref + dot(dref, o));
-        }
-    }
-    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
-#else
-    return compare_cube(map, dir, ref);
 #endif
 }
