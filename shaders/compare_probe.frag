@@ -16,5 +16,5 @@ layout(location = 0) out vec4 o_value;
 
 void main() {
     vec4 q = texelFetch(u_queries, ivec2(gl_FragCoord.xy), 0);
-    o_value = vec4(shadow_2d(u_map, q.xy, q.z, vec2(q.w, u_dref_v), u_map_size), 0.0, 0.0, 1.0);
+    o_value = vec4(shadow_2d(u_map, q.xy, Plane(q.z, vec2(q.w, u_dref_v), vec2(0.0)), u_map_size), 0.0, 0.0, 1.0);
 }

@@ -128,7 +128,8 @@ def assert_same_as_single(renderer: Any, out: Path, entry: dict[str, Any]) -> No
             vis = np.load(folder / "visibility.npy")
             assert np.array_equal(vis, result.visibility[..., 0], equal_nan=True)
             png = np.asarray(Image.open(folder / "visibility_0.png")).astype(np.int64)
-            want = np.rint(np.nan_to_num(result.visibility[..., 0]) * 65535)
+            # round(v * 65535) of the float32 factor, computed exactly (in float64).
+            want = np.rint(np.nan_to_num(result.visibility[..., 0].astype(np.float64)) * 65535)
             assert np.array_equal(png, want.astype(np.int64))
         if result.depth is not None:
             assert np.array_equal(np.load(folder / "depth.npy"), result.depth, equal_nan=True)

@@ -32,18 +32,20 @@ float visibility_2d_from(MAP2D map, vec4 c, int m, vec3 p, vec3 ng, float cos_l,
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
     float t = persp > 0.0 ? (c.w - range.x) / span : c.z;
     float texel = u_map2d_texel[m].x + persp * c.w;
-    float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
     // Depth of the receiver's plane at a point moved by one texel (dx, dy) across the map:
     // orthographic rays change it by (n.x dx + n.y dy) / n.z, perspective rays through the light
-    // by -depth (n.x dx + n.y dy) / (n . p) (both to first order).
+    // by -depth (n.x dx + n.y dy) / (n . p) at first, and exactly by the Plane's divisor.
     vec3 nl = mat3(u_map2d_view[m]) * ng;
     vec2 slope = nl.xy / max(nl.z, 1e-6);
     if (persp > 0.0) {
         vec3 pv = (u_map2d_view[m] * vec4(p, 1.0)).xyz;
         slope = -c.w * nl.xy / min(dot(nl, pv), -1e-30);
     }
-    vec2 dref = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_map2d_axes[m] * (texel / span);
-    return shadow_2d(map, uv, ref, dref, range.w);
+    Plane pl;
+    pl.ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+    pl.slope = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_map2d_axes[m] * (texel / span);
+    pl.persp = persp > 0.0 ? -pl.slope * span / c.w : vec2(0.0);
+    return shadow_2d(map, uv, pl, range.w);
 }
 
 // Map m's visibility through one case per slot (FOR_EACH_SLOT, from Python): every array index

@@ -34,11 +34,13 @@ float visibility_layer(MAPARRAY map, int j, float layer, float size, vec3 p, vec
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
     vec2 range = u_csm_range[j];
     float span = range.y - range.x;
-    float ref = c.z - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
     vec3 nl = mat3(u_csm_view[j]) * ng;
-    vec2 dref = clamp(nl.xy / max(nl.z, 1e-6), -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_csm_axes[j]
+    Plane pl;
+    pl.ref = c.z - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+    pl.slope = clamp(nl.xy / max(nl.z, 1e-6), -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_csm_axes[j]
         * (texel / span);
-    return shadow_layer(map, uv, layer, ref, dref, size);
+    pl.persp = vec2(0.0);  // orthographic
+    return shadow_layer(map, uv, layer, pl, size);
 }
 
 // Visibility through `count` cascades of slot s by the camera distance z: the first cascade

@@ -13,7 +13,7 @@ uniform vec3 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size
 // The shadow lookup in cube map m, one case per slot (see visibility_2d in chunks/shadow_2d.glsl):
 // constant sampler-array indices only.
 #define MAPCUBE_SLOT(K) min(K, NUM_MAPS_CUBE - 1)
-#define MAPCUBE_CASE(K) if (K < NUM_MAPS_CUBE && m == K) return shadow_cube(u_mapcube[MAPCUBE_SLOT(K)], major, s_axis, t_axis, uv, ref, dref, range.z);
+#define MAPCUBE_CASE(K) if (K < NUM_MAPS_CUBE && m == K) return shadow_cube(u_mapcube[MAPCUBE_SLOT(K)], major, s_axis, t_axis, uv, pl, range.z);
 
 // Shadow of the receiver at p in cube map m.
 float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
@@ -35,11 +35,14 @@ float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     cube_face(d, major, s_axis, t_axis, uv);
     float span = range.y - range.x;
     float t = (depth - range.x) / span;
-    float ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
     // A point moved by w across the face meets the receiver's plane at face depth
-    // depth (n . d) / (n . (d + w)): to first order a change of -depth (n . w) / (n . d).
+    // depth (n . d) / (n . (d + w)): at first a change of -depth (n . w) / (n . d), exactly the
+    // Plane's divisor.
     vec2 slope = -depth * vec2(dot(ng, s_axis), dot(ng, t_axis)) / min(dot(ng, d), -1e-30);
-    vec2 dref = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * (texel / span);
+    Plane pl;
+    pl.ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+    pl.slope = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * (texel / span);
+    pl.persp = -pl.slope * span / depth;
     FOR_EACH_SLOT(MAPCUBE_CASE)
     return 1.0;
 }

@@ -1,10 +1,9 @@
 // Shadow-map lookups: 1 where the receiver is lit, 0 where a caster is in front of it, fractions
-// with PCF. `ref` is the receiver's linear light depth minus its bias at the lookup point; `dref`
-// is how the receiver's plane moves per texel along the map's two axes. Every texel read is
-// compared against the receiver's plane at that texel's own centre (receiver-plane depth bias,
-// taken to the texel): the light pass stored depth at texel centres, so a planar receiver meets
-// its own stored depth exactly there and needs no slope-scaled bias to stay free of acne, and a
-// caster just above it (a decal, a lip) still shadows it.
+// with PCF. Every texel read is compared against the receiver's plane at that texel's own
+// centre (receiver-plane depth bias, taken to the texel): the light pass stored depth at texel
+// centres, so a planar receiver meets its own stored depth exactly there, at any angle to the
+// light, and needs no slope-scaled bias to stay free of acne, and a caster just above it (a
+// decal, a lip) still shadows it.
 //
 // The maps are read as plain textures (no hardware compare): a depth texture's value is the
 // linear depth itself, a byte encoding's is decoded (chunks/depth_encoding.glsl).
@@ -27,6 +26,30 @@
 #define STORED(v) decode_depth(v)
 #endif
 
+// The receiver's plane in a map's texels: its stored-depth units at the lookup point (`ref`,
+// bias subtracted) and at a point moved by d texels,
+//     ref + dot(slope, d) / (1 + dot(persp, d)),
+// exact for both projections: linear in an orthographic map (persp = 0), and in a perspective
+// one the depth along the ray through the moved point, which is what that texel stored. A plane
+// steep to the light changes the divisor by several per cent a texel, so a first-order
+// (linear) plane would need a slope bias again there.
+struct Plane {
+    float ref;
+    vec2 slope;  // per texel at d = 0
+    vec2 persp;  // perspective maps: the relative change of the ray's depth per texel
+};
+
+// The divisor is kept positive: a texel whose ray would meet the plane behind the light (a
+// plane edge-on to it) reads as far behind every caster.
+float plane_at(Plane pl, vec2 d) {
+    return pl.ref + dot(pl.slope, d) / max(1.0 + dot(pl.persp, d), 0.1);
+}
+
+vec4 plane_at4(Plane pl, vec4 dx, vec4 dy) {
+    return pl.ref + (pl.slope.x * dx + pl.slope.y * dy)
+        / max(1.0 + pl.persp.x * dx + pl.persp.y * dy, vec4(0.1));
+}
+
 // Lit (1) where the receiver's plane lies at or in front of the stored depth.
 float lit(float ref, float stored) {
     return step(ref, stored);
@@ -35,10 +58,10 @@ float lit(float ref, float stored) {
 // Four texels' lit values from a gathered quad (textureGather's order: x (0, 1), y (1, 1),
 // z (1, 0), w (0, 0) in texels from the quad's lower-left texel). `f` is the lookup point's
 // position past that texel's centre, in texels, for the quad at offset `o` from the lookup.
-vec4 lit_quad(vec4 stored, float ref, vec2 dref, vec2 f, vec2 o) {
+vec4 lit_quad(vec4 stored, Plane pl, vec2 f, vec2 o) {
     vec4 dx = vec4(0.0, 1.0, 1.0, 0.0) + (o.x - f.x);
     vec4 dy = vec4(1.0, 1.0, 0.0, 0.0) + (o.y - f.y);
-    return step(ref + dref.x * dx + dref.y * dy, stored);
+    return step(plane_at4(pl, dx, dy), stored);
 }
 
 // Tent weights of a gathered quad whose lower-left texel is `k` texels (per axis) from the first
@@ -50,7 +73,7 @@ vec4 tent_quad(vec2 k, vec2 f) {
     return vec4(w0.x * w1.y, w1.x * w1.y, w1.x * w0.y, w0.x * w0.y);
 }
 
-float shadow_2d(MAP2D map, vec2 uv, float ref, vec2 dref, float size) {
+float shadow_2d(MAP2D map, vec2 uv, Plane pl, float size) {
     vec2 st = uv * size;
 #if FILTER_PCF && ENCODING == ENC_DEPTH
     vec2 f = fract(st - 0.5);
@@ -60,7 +83,7 @@ float shadow_2d(MAP2D map, vec2 uv, float ref, vec2 dref, float size) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
             vec4 stored = textureGather(map, (corner + o) / size);
-            sum += dot(lit_quad(stored, ref, dref, f, o), tent_quad(o + float(PCF_RADIUS), f));
+            sum += dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
@@ -73,18 +96,18 @@ float shadow_2d(MAP2D map, vec2 uv, float ref, vec2 dref, float size) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
             ivec2 o = ivec2(x, y);
             ivec2 at = clamp(texel + o, ivec2(0), ivec2(int(size) - 1));
-            sum += lit(ref + dot(dref, vec2(o) + c), STORED(texelFetch(map, at, 0)));
+            sum += lit(plane_at(pl, vec2(o) + c), STORED(texelFetch(map, at, 0)));
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
 #else
-    return lit(ref + dot(dref, c), STORED(texelFetch(map, texel, 0)));
+    return lit(plane_at(pl, c), STORED(texelFetch(map, texel, 0)));
 #endif
 #endif
 }
 
 // The same on layer `layer` of an array map (cascades).
-float shadow_layer(MAPARRAY map, vec2 uv, float layer, float ref, vec2 dref, float size) {
+float shadow_layer(MAPARRAY map, vec2 uv, float layer, Plane pl, float size) {
     vec2 st = uv * size;
 #if FILTER_PCF && ENCODING == ENC_DEPTH
     vec2 f = fract(st - 0.5);
@@ -94,7 +117,7 @@ float shadow_layer(MAPARRAY map, vec2 uv, float layer, float ref, vec2 dref, flo
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
             vec4 stored = textureGather(map, vec3((corner + o) / size, layer));
-            sum += dot(lit_quad(stored, ref, dref, f, o), tent_quad(o + float(PCF_RADIUS), f));
+            sum += dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
@@ -108,12 +131,12 @@ float shadow_layer(MAPARRAY map, vec2 uv, float layer, float ref, vec2 dref, flo
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
             ivec2 o = ivec2(x, y);
             ivec2 at = clamp(texel + o, ivec2(0), ivec2(int(size) - 1));
-            sum += lit(ref + dot(dref, vec2(o) + c), STORED(texelFetch(map, ivec3(at, l), 0)));
+            sum += lit(plane_at(pl, vec2(o) + c), STORED(texelFetch(map, ivec3(at, l), 0)));
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
 #else
-    return lit(ref + dot(dref, c), STORED(texelFetch(map, ivec3(texel, l), 0)));
+    return lit(plane_at(pl, c), STORED(texelFetch(map, ivec3(texel, l), 0)));
 #endif
 #endif
 }
@@ -143,10 +166,10 @@ void cube_face(vec3 dir, out vec3 major, out vec3 s_axis, out vec3 t_axis, out v
     st = vec2(dot(dir, s_axis), dot(dir, t_axis)) / ma * 0.5 + 0.5;
 }
 
-// The lookup at face coordinates `uv` of the face given by cube_face(); `dref` per texel along the
-// face's s and t axes, `size` texels per side.
-float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, float ref,
-                  vec2 dref, float size) {
+// The lookup at face coordinates `uv` of the face given by cube_face(); the plane per texel along
+// the face's s and t axes, `size` texels per side.
+float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, Plane pl,
+                  float size) {
     float ma = length(major);
     vec2 st = uv * size;
     // The direction through face texel coordinates (x, y).
@@ -159,7 +182,7 @@ float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, fl
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
             vec4 stored = textureGather(map, CUBE_DIR(corner + o));
-            sum += dot(lit_quad(stored, ref, dref, f, o), tent_quad(o + float(PCF_RADIUS), f));
+            sum += dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
@@ -173,12 +196,12 @@ float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, fl
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
             vec2 o = vec2(float(x), float(y));
             float stored = STORED(textureLod(map, CUBE_DIR(texel + 0.5 + o), 0.0));
-            sum += lit(ref + dot(dref, o + c), stored);
+            sum += lit(plane_at(pl, o + c), stored);
         }
     }
     return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
 #else
-    return lit(ref + dot(dref, c), STORED(textureLod(map, CUBE_DIR(texel + 0.5), 0.0)));
+    return lit(plane_at(pl, c), STORED(textureLod(map, CUBE_DIR(texel + 0.5), 0.0)));
 #endif
 #endif
 }
