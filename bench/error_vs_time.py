@@ -1,7 +1,7 @@
 """Shadow error against run time over the shadow settings.
 
 Sweeps encoding (r8, rg8, rgb8, rgba8, depth) x map size (512, 1024, 2048, 4096, auto) x filter
-(hard, PCF 3x3, and for the depth encoding PCF 1x1: one hardware bilinear 2x2 compare) x bias
+(hard, PCF 3x3, and for the depth encoding PCF 1x1: one bilinear 2x2 compare) x bias
 mode over a scene set of the real models (with ground) and stress scenes
 (grazing light 5 degrees above a plane, a spot light 100 scene sizes away with a narrow cone, the
 caster-on-ground scene at 1/1000 scale).
@@ -52,8 +52,8 @@ from shadowmap.renderer.reference import trace_reference  # noqa: E402
 
 ENCODINGS = ("r8", "rg8", "rgb8", "rgba8", "depth")
 SIZES: tuple = (512, 1024, 2048, 4096, "auto")
-# pcf1: one tap; with the depth encoding that is the hardware's bilinear 2x2 compare, with the
-# packed encodings the same as hard (so it is swept for depth only).
+# pcf1: one tap; with the depth encoding that is a bilinear 2x2 compare (four texels gathered),
+# with the packed encodings the same as hard (so it is swept for depth only).
 FILTERS = ("hard", "pcf1", "pcf3")
 BIAS_MODES: dict[str, dict] = {
     "slope": {},  # BiasParams() defaults

@@ -491,7 +491,7 @@ class ShadowParams(_Model):
     pcf_kernel: PcfKernel = Field(
         default=1,
         description="odd kernel width in taps (pcf only); with the depth encoding each tap is a "
-        "hardware bilinear 2x2 compare",
+        "bilinear 2x2 compare, each texel against the receiver's plane at its centre",
         examples=[3],
     )
     bias: BiasParams = Field(default_factory=BiasParams, description="depth bias, in texels")

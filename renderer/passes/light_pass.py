@@ -2,7 +2,8 @@
 
 One FBO per map, from a small pool reused across renders. Colour encodings render the packed depth
 into an RGBA8 texture with a float depth renderbuffer for the depth test; the ``depth`` encoding
-renders into a ``GL_DEPTH_COMPONENT32F`` texture set up for hardware compare (sampler2DShadow).
+renders into a ``GL_DEPTH_COMPONENT32F`` texture, which the camera pass reads as plain depths
+(``textureGather``) to compare each texel on its own (``shaders/chunks/shadow_lookup.glsl``).
 """
 
 from __future__ import annotations
