@@ -167,11 +167,13 @@ def test_dead_worker_is_replaced_and_its_job_retried(tmp_path, models):
 def test_hung_job_is_killed_retried_once_then_failed(tmp_path):
     """Past ``timeout``, a job's worker is killed; the job is tried once more and then recorded
     as failed, and the jobs after it are rendered (3 s: a new worker's first job builds the demo
-    scene, about 1.7 s here; the slow one takes about 7 s on llvmpipe)."""
-    slow = {"width": 2048, "height": 2048, "outputs": ["color", "visibility"],
-            "lights": [{"type": "point", "position": [-2.0 + 1.3 * i, 2.5, 1.0]}
-                       for i in range(4)],
-            "shadows": {"map_size": 2048, "pcf_kernel": 9}, "optimize": False}
+    scene, about 1.7 s here; the slow one takes about 9 s on llvmpipe: eight point lights, each
+    pixel reading 81 packed texels per light)."""
+    slow = {"width": 2896, "height": 2896, "outputs": ["color", "visibility"],
+            "lights": [{"type": "point", "position": [-2.0 + 0.6 * i, 2.5, 1.0]}
+                       for i in range(8)],
+            "shadows": {"map_size": 512, "pcf_kernel": 9, "encoding": "rgba8"},
+            "optimize": False}
     entries = [{"id": "quick-1", "scene": {"builtin": "demo"}, "params": SIZE},
                {"id": "slow", "scene": {"builtin": "demo"}, "params": slow},
                {"id": "quick-2", "scene": {"builtin": "demo"}, "params": SIZE}]
