@@ -73,6 +73,15 @@ vec4 tent_quad(vec2 k, vec2 f) {
     return vec4(w0.x * w1.y, w1.x * w1.y, w1.x * w0.y, w0.x * w0.y);
 }
 
+// Taps a PCF kernel averages over: (2R+1)^2.
+const float PCF_TAPS = float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+
+// One gathered quad's share of the tent-weighted PCF sum: the quad at offset `o` (texels, from
+// -R in steps of 2) from the lookup, `f` as in lit_quad.
+float gathered_share(vec4 stored, Plane pl, vec2 f, vec2 o) {
+    return dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
+}
+
 float shadow_2d(MAP2D map, vec2 uv, Plane pl, float size) {
     vec2 st = uv * size;
 #if FILTER_PCF && ENCODING == ENC_DEPTH
@@ -82,11 +91,10 @@ float shadow_2d(MAP2D map, vec2 uv, Plane pl, float size) {
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
-            vec4 stored = textureGather(map, (corner + o) / size);
-            sum += dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
+            sum += gathered_share(textureGather(map, (corner + o) / size), pl, f, o);
         }
     }
-    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+    return sum / PCF_TAPS;
 #else
     ivec2 texel = ivec2(clamp(floor(st), 0.0, size - 1.0));
     vec2 c = floor(st) + 0.5 - st;  // the texel centre from the lookup point
@@ -99,7 +107,7 @@ float shadow_2d(MAP2D map, vec2 uv, Plane pl, float size) {
             sum += lit(plane_at(pl, vec2(o) + c), STORED(texelFetch(map, at, 0)));
         }
     }
-    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+    return sum / PCF_TAPS;
 #else
     return lit(plane_at(pl, c), STORED(texelFetch(map, texel, 0)));
 #endif
@@ -116,11 +124,10 @@ float shadow_layer(MAPARRAY map, vec2 uv, float layer, Plane pl, float size) {
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
-            vec4 stored = textureGather(map, vec3((corner + o) / size, layer));
-            sum += dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
+            sum += gathered_share(textureGather(map, vec3((corner + o) / size, layer)), pl, f, o);
         }
     }
-    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+    return sum / PCF_TAPS;
 #else
     ivec2 texel = ivec2(clamp(floor(st), 0.0, size - 1.0));
     vec2 c = floor(st) + 0.5 - st;
@@ -134,7 +141,7 @@ float shadow_layer(MAPARRAY map, vec2 uv, float layer, Plane pl, float size) {
             sum += lit(plane_at(pl, vec2(o) + c), STORED(texelFetch(map, ivec3(at, l), 0)));
         }
     }
-    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+    return sum / PCF_TAPS;
 #else
     return lit(plane_at(pl, c), STORED(texelFetch(map, ivec3(texel, l), 0)));
 #endif
@@ -181,11 +188,10 @@ float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, Pl
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
-            vec4 stored = textureGather(map, CUBE_DIR(corner + o));
-            sum += dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
+            sum += gathered_share(textureGather(map, CUBE_DIR(corner + o)), pl, f, o);
         }
     }
-    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+    return sum / PCF_TAPS;
 #else
     // Nearest-filtered reads at texel centres (cube maps have no texelFetch).
     vec2 texel = floor(st);
@@ -199,7 +205,7 @@ float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, Pl
             sum += lit(plane_at(pl, o + c), stored);
         }
     }
-    return sum / float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
+    return sum / PCF_TAPS;
 #else
     return lit(plane_at(pl, c), STORED(textureLod(map, CUBE_DIR(texel + 0.5), 0.0)));
 #endif
