@@ -6,6 +6,7 @@
 #define NUM_LIGHTS 0        // lights shaded, at most MAX_LIGHTS
 #define LIGHT_TYPES         // a LIGHT_* id per light, comma-separated
 #define LIGHT_MAPS_2D       // each light's slot among the 2D maps (-1: none), comma-separated
+#define MAP2D_PERSPECTIVE   // each 2D map's projection (1: perspective, 0: orthographic), comma-separated
 #define LIGHT_MAPS_CUBE     // each light's slot among the cube maps (-1: none), comma-separated
 #define LIGHT_MAPS_CSM      // each light's slot among the cascaded maps (-1: none), comma-separated
 #define LIGHT_CASCADES      // each light's number of cascades (0: not cascaded), comma-separated
@@ -92,13 +93,19 @@ void main() {
     vec3 to_eye = normalize(u_camera_position - p);
     vec3 n = normalize(v_normal);
     if (dot(n, to_eye) < 0.0) n = -n;  // light the side that is seen
-    // Geometric normal, facing the camera: the true slope of the surface for the bias.
+    // Geometric normal, facing the camera: the true slope of the surface for the bias and the
+    // receiver plane of cube and cascaded maps, and the normal offset's direction. 2D maps take
+    // their plane from their own coordinates' derivatives; where nothing else reads this, the
+    // compiler drops it.
     vec3 ng = cross(dFdx(p), dFdy(p));
     float ng_len = length(ng);
     ng = ng_len > 0.0 ? ng / ng_len : n;
     if (dot(ng, to_eye) < 0.0) ng = -ng;
 
     vec3 color = u_ambient * base.rgb;
+#if NUM_MAPS_2D > 0
+    Map2dDerivatives map2d = map2d_derivatives();  // here, in uniform control flow
+#endif
     float vis[VIS_SIZE];
     for (int k = 0; k < VIS_SIZE; ++k) vis[k] = 1.0;
 #if NUM_MAPS_CSM > 0
@@ -126,7 +133,7 @@ void main() {
             float cos_l = max(dot(ngl, l), 1e-4);
             float tan_l = sqrt(max(1.0 - cos_l * cos_l, 0.0)) / cos_l;
 #if NUM_MAPS_2D > 0
-            if (m2 != -1) shadow = visibility_2d(m2, p, ngl, cos_l, tan_l);
+            if (m2 != -1) shadow = visibility_2d(m2, map2d, p, ngl, cos_l);
 #endif
 #if NUM_MAPS_CUBE > 0
             if (mc != -1) shadow = visibility_cube(mc, p, ngl, cos_l, tan_l);

@@ -275,6 +275,8 @@ class _FrameState:
         self.map_2d = [slots["2d"].get(lp.index, -1) for lp in plan.lights]
         self.map_cube = [slots["cube"].get(lp.index, -1) for lp in plan.lights]
         self.map_csm = [slots["csm"].get(lp.index, -1) for lp in plan.lights]
+        # Per 2D slot, its projection: each map's lookup code is compiled for its own.
+        self.persp_2d = [int(m.plan.kind == "perspective") for m in maps if _family(m) == "2d"]
         self.cascades = [len(lp.cascades) for lp in plan.lights]
 
     def has_uv(self, gp: GpuPrimitive) -> bool:
@@ -308,6 +310,8 @@ class _FrameState:
             d["LIGHT_TYPES"] = ", ".join(str(LIGHT_TYPES[lp.light.type]) for lp in self.plan.lights)
             d["LIGHT_MAPS_2D"] = ", ".join(str(m) for m in self.map_2d)
             d["LIGHT_MAPS_CUBE"] = ", ".join(str(m) for m in self.map_cube)
+            if self.n_2d:
+                d["MAP2D_PERSPECTIVE"] = ", ".join(str(k) for k in self.persp_2d)
             if self.n_csm:
                 d["LIGHT_MAPS_CSM"] = ", ".join(str(m) for m in self.map_csm)
                 d["LIGHT_CASCADES"] = ", ".join(str(c) for c in self.cascades)
@@ -350,7 +354,6 @@ class _FrameState:
         if two_d:
             prog.set("u_map2d", [units[self.maps.index(m)] for m in two_d])
             prog.set("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d])
-            prog.set("u_map2d_view", [m.plan.view for m in two_d])
             prog.set("u_map2d_range",
                      [(m.plan.near, m.plan.far, 0.0, m.plan.map_size) for m in two_d])
             prog.set("u_map2d_texel", [m.plan.texel for m in two_d])

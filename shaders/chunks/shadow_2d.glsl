@@ -1,7 +1,7 @@
 // Visibility of a receiver in the camera pass's 2D shadow maps (orthographic and perspective).
 //
-// The including stage declares NUM_MAPS_2D, NORMAL_OFFSET and PCF_RADIUS (and what the included
-// chunks use).
+// The including stage declares NUM_MAPS_2D, MAP2D_PERSPECTIVE, NORMAL_OFFSET and PCF_RADIUS (and
+// what the included chunks use).
 #include "chunks/shadow_lookup.glsl"
 #include "chunks/lighting.glsl"
 
@@ -9,51 +9,84 @@
 in vec4 v_map2d[NUM_MAPS_2D];              // u_map2d_matrix x world, from camera_pass.vert
 uniform MAP2D u_map2d[NUM_MAPS_2D];
 uniform mat4 u_map2d_matrix[NUM_MAPS_2D];  // world -> biased light clip (normal offset)
-uniform mat4 u_map2d_view[NUM_MAPS_2D];    // world -> light view (receiver plane)
 uniform vec4 u_map2d_range[NUM_MAPS_2D];   // near, far, unused, map size
 // World size of a texel at light depth d: x + y * d (orthographic: y = 0; perspective: x = 0).
 uniform vec2 u_map2d_texel[NUM_MAPS_2D];
 // A texel along the map's x and y axes over that size (< 1 along the shorter side of an oblong fit).
 uniform vec2 u_map2d_axes[NUM_MAPS_2D];
+// Per slot, 1 for a perspective map (spot lights), 0 for an orthographic one: a constant of the
+// variant, as a runtime choice would run both projections' code on every pixel.
+const int MAP2D_PERSP[NUM_MAPS_2D] = int[NUM_MAPS_2D](MAP2D_PERSPECTIVE);
+
+// The screen derivatives of every slot's light coordinate, which give the receiver's plane.
+// Taken in main() where control flow is uniform (derivatives are undefined inside branches).
+struct Map2dDerivatives {
+    vec4 dx[NUM_MAPS_2D];
+    vec4 dy[NUM_MAPS_2D];
+};
+
+Map2dDerivatives map2d_derivatives() {
+    Map2dDerivatives d;
+    for (int k = 0; k < NUM_MAPS_2D; ++k) {
+        d.dx[k] = dFdx(v_map2d[k]);
+        d.dy[k] = dFdy(v_map2d[k]);
+    }
+    return d;
+}
 
 // Shadow of the receiver at p in 2D map m. `c` is the interpolated light coordinate from the
-// vertex shader (bias matrix applied: xy in [0, 1]; for orthographic maps z is the linear depth
-// t, for perspective ones w is the distance along the light's axis).
-float visibility_2d_from(MAP2D map, vec4 c, int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
+// vertex shader (bias matrix applied: xy in [0, 1] after the divide by w; z is the linear depth
+// t of an orthographic map, w the distance along a perspective map's axis), `cx` and `cy` its
+// screen derivatives; `ng` and `cos_l` serve the normal offset only.
+//
+// The receiver's plane comes from the derivatives, with no normal: c's components are affine in
+// world space, so on a triangle the depth is an affine function of c.x and c.y, and the two
+// screen steps give its coefficients (a, b):
+//   orthographic: t = t0 + (a, b) . (uv - uv0), a change of (a, b) / size per texel;
+//   perspective: w = a x + b y + e, so at map point uv the depth is e / (1 - (a, b) . uv) and a
+//   texel step d multiplies it by 1 / (1 - k . d), k = (w0 / e) (a, b) / size: the Plane's
+//   divisor, and w0 k / span its slope at d = 0.
+float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp, vec3 p,
+                         vec3 ng, float cos_l) {
     vec4 range = u_map2d_range[m];
     float span = range.y - range.x;
-    float persp = u_map2d_texel[m].y;  // > 0: perspective, world texel size grows with depth
+    float size = range.w;
+    vec2 tx = u_map2d_texel[m];
 #if NORMAL_OFFSET
-    float texel0 = u_map2d_texel[m].x + persp * c.w;
+    float texel0 = persp ? tx.y * c.w : tx.x;
     vec3 q = p + ng * (u_bias.w * texel0 * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
     c = u_map2d_matrix[m] * vec4(q, 1.0);
 #endif
-    vec2 uv = c.xy / c.w;
+    vec2 uv = persp ? c.xy / c.w : c.xy;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    float t = persp > 0.0 ? (c.w - range.x) / span : c.z;
-    float texel = u_map2d_texel[m].x + persp * c.w;
-    // Depth of the receiver's plane at a point moved by one texel (dx, dy) across the map:
-    // orthographic rays change it by (n.x dx + n.y dy) / n.z, perspective rays through the light
-    // by -depth (n.x dx + n.y dy) / (n . p) at first, and exactly by the Plane's divisor.
-    vec3 nl = mat3(u_map2d_view[m]) * ng;
-    vec2 slope = nl.xy / max(nl.z, 1e-6);
-    if (persp > 0.0) {
-        vec3 pv = (u_map2d_view[m] * vec4(p, 1.0)).xyz;
-        slope = -c.w * nl.xy / min(dot(nl, pv), -1e-30);
-    }
+    float t = persp ? (c.w - range.x) / span : c.z;
+    float texel = persp ? tx.y * c.w : tx.x;
+    // Solve (cx.xy; cy.xy) (a, b) = (cx, cy).depth for the plane's coefficients. A receiver
+    // seen edge-on by the camera makes the system singular: its tangent goes to the clamp.
+    vec2 dd = persp ? vec2(cx.w, cy.w) : vec2(cx.z, cy.z);
+    vec2 ab = vec2(dd.x * cy.y - cx.y * dd.y, cx.x * dd.y - dd.x * cy.x)
+        / (cx.x * cy.y - cx.y * cy.x);
+    // The depth's change per texel at the lookup point, in t units.
+    vec2 per_texel = persp ? ab * (c.w * c.w / ((c.w - dot(ab, c.xy)) * size * span))
+                           : ab / size;
+    // The plane's tangent to the light along each map axis (world depth over world texel), held
+    // to PLANE_SLOPE_MAX; NaN (a degenerate triangle) counts as flat.
+    vec2 tan_axes = clamp(per_texel * (span / texel) / u_map2d_axes[m], -PLANE_SLOPE_MAX,
+                          PLANE_SLOPE_MAX);
+    tan_axes = mix(tan_axes, vec2(0.0), isnan(tan_axes));
     Plane pl;
-    pl.ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
-    pl.slope = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_map2d_axes[m] * (texel / span);
-    pl.persp = persp > 0.0 ? -pl.slope * span / c.w : vec2(0.0);
-    return shadow_2d(map, uv, pl, range.w);
+    pl.ref = t - bias_world(texel, length(tan_axes)) / span - u_bias_steps * ENC_STEP;
+    pl.slope = tan_axes * u_map2d_axes[m] * (texel / span);
+    pl.persp = persp ? -pl.slope * span / c.w : vec2(0.0);
+    return shadow_2d(map, uv, pl, size);
 }
 
 // Map m's visibility through one case per slot (FOR_EACH_SLOT, from Python): every array index
 // is a constant, as dynamic indexing of sampler arrays is where drivers differ. The cases past
 // NUM_MAPS_2D are never taken and compile away; MAP2D_SLOT keeps their indices in range.
 #define MAP2D_SLOT(K) min(K, NUM_MAPS_2D - 1)
-#define MAP2D_CASE(K) if (K < NUM_MAPS_2D && m == K) return visibility_2d_from(u_map2d[MAP2D_SLOT(K)], v_map2d[MAP2D_SLOT(K)], MAP2D_SLOT(K), p, ng, cos_l, tan_l);
-float visibility_2d(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
+#define MAP2D_CASE(K) if (K < NUM_MAPS_2D && m == K) return visibility_2d_from(u_map2d[MAP2D_SLOT(K)], v_map2d[MAP2D_SLOT(K)], d.dx[MAP2D_SLOT(K)], d.dy[MAP2D_SLOT(K)], MAP2D_SLOT(K), MAP2D_PERSP[MAP2D_SLOT(K)] != 0, p, ng, cos_l);
+float visibility_2d(int m, Map2dDerivatives d, vec3 p, vec3 ng, float cos_l) {
     FOR_EACH_SLOT(MAP2D_CASE)
     return 1.0;
 }
