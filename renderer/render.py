@@ -417,8 +417,8 @@ class Renderer:
             check_gpu_range(scene.bounds, gpu.origin, [camera.position] + [
                 lt.position for lt in lights if lt.type != "directional"])
             plan, plan_hit = self._plan(scene, camera, lights, gpu.origin, params)
-            check_map_sizes((lp.map_size for lp in plan.map_lights),
-                            min(self.context.max_texture_size, self.context.max_cube_size))
+            # Every map is a 2D or 2D array texture (cube faces and cascades are layers).
+            check_map_sizes((lp.map_size for lp in plan.map_lights), self.context.max_texture_size)
             timings["plan"] = time.perf_counter() - t
 
             t = time.perf_counter()

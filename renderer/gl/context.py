@@ -51,7 +51,6 @@ class GLContext:
         self.renderer = GL.glGetString(GL.GL_RENDERER).decode()
         self.version = GL.glGetString(GL.GL_VERSION).decode()
         self.max_texture_size = int(GL.glGetIntegerv(GL.GL_MAX_TEXTURE_SIZE))
-        self.max_cube_size = int(GL.glGetIntegerv(GL.GL_MAX_CUBE_MAP_TEXTURE_SIZE))
 
     def check_thread(self) -> None:
         if threading.get_ident() != self.thread:

@@ -542,7 +542,11 @@ class Framebuffer:
         One colour attachment each, as 2D textures (or cube faces when ``cube`` is true).
     depth : (internal format, is_texture) or None
     cube : bool
-        Attachments are cube maps; :meth:`bind_face` selects the face to render.
+        Attachments are a cube map's six faces, stored as the six layers of 2D array textures
+        in GL's face order (+X, -X, +Y, -Y, +Z, -Z); :meth:`bind_face` selects the face to
+        render. The camera pass picks the face itself (``cube_face`` in
+        ``chunks/shadow_lookup.glsl``), and an array read costs much less than a cube-map read
+        on llvmpipe.
     layers : int
         Attachments are 2D array textures of this many layers (cascades); :meth:`bind_layer`
         selects the layer to render. 0: plain 2D textures.
@@ -551,28 +555,25 @@ class Framebuffer:
     def __init__(self, width: int, height: int, colors: Sequence[tuple[int, int, int]],
                  depth: tuple[int, bool] | None, cube: bool = False,
                  layers: int = 0) -> None:
+        if cube:
+            layers = 6
         self.width, self.height, self.cube, self.layers = width, height, cube, layers
         # What the attachments hold (caches bound their size by it).
-        texels = width * height * (6 if cube else 1) * max(layers, 1)
+        texels = width * height * max(layers, 1)
         self.nbytes = texels * (sum(_TEXEL_BYTES.get(c[0], 16) for c in colors)
                                 + (_TEXEL_BYTES.get(depth[0], 4) if depth is not None else 0))
         self.fbo = GL.glGenFramebuffers(1)
         self.color_textures: list[int] = []
         self.depth_texture = 0
         self.depth_renderbuffer = 0
-        if layers:
-            target = GL.GL_TEXTURE_2D_ARRAY
-        else:
-            target = GL.GL_TEXTURE_CUBE_MAP if cube else GL.GL_TEXTURE_2D
+        target = GL.GL_TEXTURE_2D_ARRAY if layers else GL.GL_TEXTURE_2D
         self.target = target
-        faces = [GL.GL_TEXTURE_CUBE_MAP_POSITIVE_X + i for i in range(6)] if cube else [target]
 
         def storage(internal: int, fmt: int, typ: int) -> None:
             if layers:
                 GL.glTexImage3D(target, 0, internal, width, height, layers, 0, fmt, typ, None)
-                return
-            for f in faces:
-                GL.glTexImage2D(f, 0, internal, width, height, 0, fmt, typ, None)
+            else:
+                GL.glTexImage2D(target, 0, internal, width, height, 0, fmt, typ, None)
 
         try:
             for internal, fmt, typ in colors:
@@ -601,10 +602,8 @@ class Framebuffer:
                                              GL.GL_RENDERBUFFER, self.depth_renderbuffer)
             if layers:
                 self.bind_layer(0)
-            elif not cube:
-                self._attach(GL.GL_TEXTURE_2D)
             else:
-                self.bind_face(0)
+                self._attach(GL.GL_TEXTURE_2D)
             GL.glDrawBuffers(len(colors), [GL.GL_COLOR_ATTACHMENT0 + i for i in range(len(colors))]
                              if colors else [GL.GL_NONE])
             if not colors:
@@ -631,9 +630,8 @@ class Framebuffer:
         GL.glViewport(0, 0, self.width, self.height)
 
     def bind_face(self, face: int) -> None:
-        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
-        self._attach(GL.GL_TEXTURE_CUBE_MAP_POSITIVE_X + face)
-        GL.glViewport(0, 0, self.width, self.height)
+        """Render into (and read from) one face of a cube map (0 to 5: +X, -X, +Y, -Y, +Z, -Z)."""
+        self.bind_layer(face)
 
     def bind_layer(self, layer: int) -> None:
         """Render into (and read from) one layer of the array attachments."""
@@ -692,5 +690,3 @@ def _sampling(target: int) -> None:
     GL.glTexParameteri(target, GL.GL_TEXTURE_MAG_FILTER, f)
     GL.glTexParameteri(target, GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE)
     GL.glTexParameteri(target, GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)
-    if target == GL.GL_TEXTURE_CUBE_MAP:
-        GL.glTexParameteri(target, GL.GL_TEXTURE_WRAP_R, GL.GL_CLAMP_TO_EDGE)

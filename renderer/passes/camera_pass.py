@@ -95,7 +95,6 @@ class CameraPass:
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
-        GL.glEnable(GL.GL_TEXTURE_CUBE_MAP_SEAMLESS)
         GL.glDisable(GL.GL_BLEND)
 
         view = plan.camera.view.copy()

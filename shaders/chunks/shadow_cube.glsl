@@ -1,4 +1,5 @@
-// Visibility of a receiver in the camera pass's cube shadow maps (point lights, wide spots).
+// Visibility of a receiver in the camera pass's cube shadow maps (point lights, wide spots), whose
+// six faces are the layers of an array texture (cube_face() in chunks/shadow_lookup.glsl).
 //
 // The including stage declares NUM_MAPS_CUBE, NORMAL_OFFSET and PCF_RADIUS (and what the
 // included chunks use).
@@ -13,7 +14,7 @@ uniform vec3 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size
 // The shadow lookup in cube map m, one case per slot (see visibility_2d in chunks/shadow_2d.glsl):
 // constant sampler-array indices only.
 #define MAPCUBE_SLOT(K) min(K, NUM_MAPS_CUBE - 1)
-#define MAPCUBE_CASE(K) if (K < NUM_MAPS_CUBE && m == K) return shadow_cube(u_mapcube[MAPCUBE_SLOT(K)], major, s_axis, t_axis, uv, pl, range.z);
+#define MAPCUBE_CASE(K) if (K < NUM_MAPS_CUBE && m == K) return shadow_layer(u_mapcube[MAPCUBE_SLOT(K)], uv, face, pl, range.z);
 
 // Shadow of the receiver at p in cube map m.
 float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
@@ -28,11 +29,11 @@ float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     a = abs(d);
     depth = max(a.x, max(a.y, a.z));
 #endif
-    vec3 major;
+    float face;
     vec3 s_axis;
     vec3 t_axis;
     vec2 uv;
-    cube_face(d, major, s_axis, t_axis, uv);
+    cube_face(d, face, s_axis, t_axis, uv);
     float span = range.y - range.x;
     float t = (depth - range.x) / span;
     // A point moved by w across the face meets the receiver's plane at face depth

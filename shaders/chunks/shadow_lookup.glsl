@@ -17,7 +17,7 @@
 #include "chunks/depth_encoding.glsl"
 
 #define MAP2D sampler2D
-#define MAPCUBE samplerCube
+#define MAPCUBE sampler2DArray  // a cube map's six faces as layers, +X, -X, +Y, -Y, +Z, -Z
 #define MAPARRAY sampler2DArray
 
 #if ENCODING == ENC_DEPTH
@@ -114,7 +114,18 @@ float shadow_2d(MAP2D map, vec2 uv, Plane pl, float size) {
 #endif
 }
 
-// The same on layer `layer` of an array map (cascades).
+// Four texels' lit values from a gathered quad, like lit_quad, for a lookup at `st` (texels)
+// whose quad's lower-left texel centre is `c0` (texels), in a map of `size` texels: each texel is
+// compared against the plane at the centre of the texel the read returns, clamped to the map
+// (at a cube face's edge the read clamps to the edge texel, and so does the plane).
+vec4 lit_quad_clamped(vec4 stored, Plane pl, vec2 st, vec2 c0, float size) {
+    vec4 dx = clamp(vec4(0.0, 1.0, 1.0, 0.0) + c0.x, 0.5, size - 0.5) - st.x;
+    vec4 dy = clamp(vec4(1.0, 1.0, 0.0, 0.0) + c0.y, 0.5, size - 0.5) - st.y;
+    return step(plane_at4(pl, dx, dy), stored);
+}
+
+// The same on layer `layer` of an array map: cascades, and the six faces of a cube map. Texels
+// past the layer's edge read as its edge texels and are compared at those texels' centres.
 float shadow_layer(MAPARRAY map, vec2 uv, float layer, Plane pl, float size) {
     vec2 st = uv * size;
 #if FILTER_PCF && ENCODING == ENC_DEPTH
@@ -124,90 +135,55 @@ float shadow_layer(MAPARRAY map, vec2 uv, float layer, Plane pl, float size) {
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
-            sum += gathered_share(textureGather(map, vec3((corner + o) / size, layer)), pl, f, o);
+            vec4 stored = textureGather(map, vec3((corner + o) / size, layer));
+            sum += dot(lit_quad_clamped(stored, pl, st, corner + o - 0.5, size),
+                       tent_quad(o + float(PCF_RADIUS), f));
         }
     }
     return sum / PCF_TAPS;
 #else
     ivec2 texel = ivec2(clamp(floor(st), 0.0, size - 1.0));
-    vec2 c = floor(st) + 0.5 - st;
     int l = int(layer);
 #if FILTER_PCF
     float sum = 0.0;
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
-            ivec2 o = ivec2(x, y);
-            ivec2 at = clamp(texel + o, ivec2(0), ivec2(int(size) - 1));
-            sum += lit(plane_at(pl, vec2(o) + c), STORED(texelFetch(map, ivec3(at, l), 0)));
+            ivec2 at = clamp(texel + ivec2(x, y), ivec2(0), ivec2(int(size) - 1));
+            float stored = STORED(texelFetch(map, ivec3(at, l), 0));
+            sum += lit(plane_at(pl, vec2(at) + 0.5 - st), stored);
         }
     }
     return sum / PCF_TAPS;
 #else
-    return lit(plane_at(pl, c), STORED(texelFetch(map, ivec3(texel, l), 0)));
+    return lit(plane_at(pl, vec2(texel) + 0.5 - st), STORED(texelFetch(map, ivec3(texel, l), 0)));
 #endif
 #endif
 }
 
-// A cube map's face as seen from a lookup direction: `s_axis`, `t_axis` are the world directions
-// in which the face's s and t grow (the cube-map face table of the GL specification), `st` the
-// lookup's face coordinates in [0, 1].
-void cube_face(vec3 dir, out vec3 major, out vec3 s_axis, out vec3 t_axis, out vec2 st) {
+// A cube map's face as seen from a lookup direction: its layer (`face`, in GL's order +X, -X,
+// +Y, -Y, +Z, -Z), `s_axis`, `t_axis`, the world directions in which the face's s and t grow
+// (the cube-map face table of the GL specification), and `st`, the lookup's face coordinates in
+// [0, 1]. The faces are rendered and stored as the layers of a 2D array texture: the lookup
+// picks the face here anyway, and an array read costs much less than a cube-map read on a
+// software rasterizer.
+void cube_face(vec3 dir, out float face, out vec3 s_axis, out vec3 t_axis, out vec2 st) {
     vec3 a = abs(dir);
     if (a.x >= a.y && a.x >= a.z) {
         float sg = sign(dir.x);
-        major = vec3(dir.x, 0.0, 0.0);
+        face = dir.x < 0.0 ? 1.0 : 0.0;
         s_axis = vec3(0.0, 0.0, -sg);
         t_axis = vec3(0.0, -1.0, 0.0);
     } else if (a.y >= a.z) {
         float sg = sign(dir.y);
-        major = vec3(0.0, dir.y, 0.0);
+        face = dir.y < 0.0 ? 3.0 : 2.0;
         s_axis = vec3(1.0, 0.0, 0.0);
         t_axis = vec3(0.0, 0.0, sg);
     } else {
         float sg = sign(dir.z);
-        major = vec3(0.0, 0.0, dir.z);
+        face = dir.z < 0.0 ? 5.0 : 4.0;
         s_axis = vec3(sg, 0.0, 0.0);
         t_axis = vec3(0.0, -1.0, 0.0);
     }
     float ma = max(a.x, max(a.y, a.z));
     st = vec2(dot(dir, s_axis), dot(dir, t_axis)) / ma * 0.5 + 0.5;
-}
-
-// The lookup at face coordinates `uv` of the face given by cube_face(); the plane per texel along
-// the face's s and t axes, `size` texels per side.
-float shadow_cube(MAPCUBE map, vec3 major, vec3 s_axis, vec3 t_axis, vec2 uv, Plane pl,
-                  float size) {
-    float ma = length(major);
-    vec2 st = uv * size;
-    // The direction through face texel coordinates (x, y).
-#define CUBE_DIR(c) (major + (s_axis * ((c).x / size * 2.0 - 1.0) + t_axis * ((c).y / size * 2.0 - 1.0)) * ma)
-#if FILTER_PCF && ENCODING == ENC_DEPTH
-    vec2 f = fract(st - 0.5);
-    vec2 corner = floor(st - 0.5) + 1.0;
-    float sum = 0.0;
-    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
-        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
-            vec2 o = vec2(float(x), float(y));
-            sum += gathered_share(textureGather(map, CUBE_DIR(corner + o)), pl, f, o);
-        }
-    }
-    return sum / PCF_TAPS;
-#else
-    // Nearest-filtered reads at texel centres (cube maps have no texelFetch).
-    vec2 texel = floor(st);
-    vec2 c = texel + 0.5 - st;
-#if FILTER_PCF
-    float sum = 0.0;
-    for (int y = -PCF_RADIUS; y <= PCF_RADIUS; ++y) {
-        for (int x = -PCF_RADIUS; x <= PCF_RADIUS; ++x) {
-            vec2 o = vec2(float(x), float(y));
-            float stored = STORED(textureLod(map, CUBE_DIR(texel + 0.5 + o), 0.0));
-            sum += lit(plane_at(pl, o + c), stored);
-        }
-    }
-    return sum / PCF_TAPS;
-#else
-    return lit(plane_at(pl, c), STORED(textureLod(map, CUBE_DIR(texel + 0.5), 0.0)));
-#endif
-#endif
 }
