@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -19,6 +20,11 @@ from .params import CameraParams
 from .plan.geometry import look_at, perspective
 from .plan.instances import scene_box  # Scene.bounds, read once per scene
 from .scene import Scene
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 @dataclass(frozen=True)
@@ -48,15 +54,18 @@ class Camera:
     def position(self) -> np.ndarray:
         return self.pose[:3, 3]
 
-    @property
+    # Computed once per camera (a repeated request's camera is the same object) and read-only:
+    # the camera is immutable, so are these.
+    @cached_property
     def view(self) -> np.ndarray:
-        """World-to-camera matrix, shape (4, 4)."""
-        return np.linalg.inv(self.pose)
+        """World-to-camera matrix, shape (4, 4), read-only."""
+        return _read_only(np.linalg.inv(self.pose))
 
-    @property
+    @cached_property
     def projection(self) -> np.ndarray:
-        """OpenGL perspective projection, shape (4, 4)."""
-        return perspective(self.yfov, self.width / self.height, self.znear, self.zfar)
+        """OpenGL perspective projection, shape (4, 4), read-only."""
+        return _read_only(perspective(self.yfov, self.width / self.height, self.znear,
+                                      self.zfar))
 
     def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
         """World-space rays through every pixel centre.

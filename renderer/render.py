@@ -115,6 +115,28 @@ def _light_depths(maps: list) -> list[LightDepth]:
     return out
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class _Prepared:
+    """What :meth:`Renderer._prepare` settles for one request before any GL work.
+
+    ``scene`` is the one drawn (with the ground when asked), ``params`` the request with its
+    ``max_map_size`` held to what fits, ``warnings`` the request's and the file's, ``origin``
+    the upload's (the centre of the scene's bounds), ``plan_key`` the plan cache's key ("" to
+    plan anew), ``camera_report`` the plan's ``camera`` entry, ``resolve_seconds`` the time the
+    camera, lights and key took when made.
+    """
+
+    scene: Scene
+    params: RenderParams
+    warnings: list[str]
+    camera: Camera
+    lights: list[Light]
+    origin: np.ndarray
+    plan_key: str
+    camera_report: dict[str, Any]
+    resolve_seconds: float
+
+
 @dataclass
 class RenderResult:
     """Outputs of one render; each image is None unless it was requested.
@@ -215,6 +237,9 @@ class Renderer:
         self._grounded: OrderedDict[int, tuple[weakref.ref[Scene], tuple, Scene]] = OrderedDict()
         #: Each source scene's own floor (see :meth:`_own_floor`), by the source object.
         self._floors: OrderedDict[int, tuple[weakref.ref[Scene], Instance | None]] = OrderedDict()
+        #: Each request's preparation (see :meth:`_prepare`), by (source scene, request JSON).
+        self._prepared: OrderedDict[tuple[int, str], tuple[weakref.ref[Scene], tuple, _Prepared]]
+        self._prepared = OrderedDict()
         self._closed = False
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -227,6 +252,7 @@ class Renderer:
         try:
             self.context.make_current()
             self._grounded.clear()
+            self._prepared.clear()
             self.uploads.clear()
             self.light_pass.release()
             self.camera_pass.release()
@@ -361,10 +387,52 @@ class Renderer:
         self.context.make_current()
         t0 = time.perf_counter()
         params = _as_params(params)
-        check_request(params, self.limits)
-        timings: dict[str, float] = {}
         if not isinstance(scene, Scene):
+            check_request(params, self.limits)  # before a parse the request may not allow
             scene = self.load(scene, resources=resources)
+        prep, made = self._prepare(scene, params)
+        # The camera, lights and plan key belong to the plan stage (none of it on a repeat).
+        resolve = prep.resolve_seconds if made else 0.0
+        timings: dict[str, float] = {"load": time.perf_counter() - t0 - resolve, "plan": resolve}
+        try:
+            result = self._render(prep, timings, t0)
+        except ShadowMapError:
+            raise
+        except GLError as exc:
+            raise RenderError(f"OpenGL error: {exc}") from exc
+        # The plan's own (cascades it had to cut or coarsen) after the request's; each once.
+        result.warnings = list(dict.fromkeys(prep.warnings + result.warnings))
+        return result
+
+    def _prepare(self, scene: Scene, params: RenderParams) -> tuple[_Prepared, bool]:
+        """Everything a request settles before GL work, the same object again for a repeated one;
+        (preparation, made now).
+
+        Validation against the limits, the ground, the resolved camera and lights, the range
+        checks and the plan's key are pure functions of the scene object (unchanged, as
+        :meth:`_with_ground` compares it), the request and the limits: a client polling one
+        view, or a batch's repeated job, does none of it twice. A request that fails a check is
+        not kept, so it fails again the same way.
+        """
+        key = (id(scene), params.model_dump_json()) if self.cache_entries > 0 else None
+        state = _ground_state(scene)
+        if key is not None:
+            hit = self._prepared.get(key)
+            if hit is not None and hit[0]() is scene and _same_state(hit[1], state):
+                self._prepared.move_to_end(key)
+                return hit[2], False
+        prep = self._prepare_new(scene, params, key[1] if key else None)
+        if key is not None:
+            for k in [k for k, v in self._prepared.items() if v[0]() is None]:
+                del self._prepared[k]  # their scenes are gone (an id may be reused)
+            self._prepared[key] = (weakref.ref(scene), state, prep)
+            while len(self._prepared) > 2 * self.cache_entries:
+                self._prepared.popitem(last=False)
+        return prep, True
+
+    def _prepare_new(self, scene: Scene, params: RenderParams,
+                     params_json: str | None) -> _Prepared:
+        check_request(params, self.limits)
         # A copy, read before the ground is added: what loading left out belongs to the file,
         # and a cached scene's list must not grow with every render.
         warnings = list(scene.warnings)
@@ -377,49 +445,49 @@ class Renderer:
                 warnings.append(
                     f"ground: no plane added: the scene has its own floor ({name}, spanning "
                     "its footprint at its lowest point), and a second plane would show under it")
-        timings["load"] = time.perf_counter() - t0
         check_scene(scene, self.limits, params)
         # The memory the render needs, before any GL work: refused over max_request_bytes,
         # except that 'auto' maps are held to the largest size that fits (with a warning).
         top, fitted = fit_request(params, scene, self.limits)
         warnings += request_warnings(params, scene, self.limits) + fitted
+        # A copy the preparation keeps: the caller may change their model afterwards.
+        params = params.model_copy(deep=True)
         if params.shadows.max_map_size != top:
-            params = params.model_copy(deep=True)
             params.shadows.max_map_size = top
+            params_json = None
         # Before the upload and the camera: coordinates float32 cannot hold would overflow there.
         lo, hi = scene.bounds
         check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
-        try:
-            result = self._render(scene, params, timings, t0)
-        except ShadowMapError:
-            raise
-        except GLError as exc:
-            raise RenderError(f"OpenGL error: {exc}") from exc
-        # The plan's own (cascades it had to cut or coarsen) after the request's; each once.
-        result.warnings = list(dict.fromkeys(warnings + result.warnings))
-        return result
+        t = time.perf_counter()
+        camera = resolve_camera(params.camera, scene, params.width, params.height)
+        lights = resolve_lights(params.lights, scene)
+        check_lights(len(lights), self.limits)
+        # Again with the file's camera and lights, and the resolved positions. The upload is
+        # placed at the centre of the scene's bounds (GpuScene.upload).
+        origin = (lo + hi) / 2
+        check_gpu_range(scene.bounds, origin, [camera.position] + [
+            lt.position for lt in lights if lt.type != "directional"])
+        key = (plan_key(scene, camera, lights, origin, params, params_json)
+               if self.plans.enabled else "")
+        return _Prepared(scene, params, warnings, camera, lights, origin, key,
+                         _camera_report(camera, scene), time.perf_counter() - t)
 
-    def _render(self, scene: Scene, params: RenderParams, timings: dict[str, float],
-                t0: float) -> RenderResult:
+    def _render(self, prep: _Prepared, timings: dict[str, float], t0: float) -> RenderResult:
         from OpenGL import GL
 
         from .gl.context import check_gl
 
+        scene, params, camera, lights = prep.scene, prep.params, prep.camera, prep.lights
         t = time.perf_counter()
         gpu, kept, hit = self._upload(scene)
         timings["upload"] = time.perf_counter() - t
         try:
             t = time.perf_counter()
-            camera = resolve_camera(params.camera, scene, params.width, params.height)
-            lights = resolve_lights(params.lights, scene)
-            check_lights(len(lights), self.limits)
-            # Again with the file's camera and lights, and the resolved positions.
-            check_gpu_range(scene.bounds, gpu.origin, [camera.position] + [
-                lt.position for lt in lights if lt.type != "directional"])
-            plan, plan_hit = self._plan(scene, camera, lights, gpu.origin, params)
+            plan, _, plan_hit = self.plans.get_or_make(
+                prep.plan_key, lambda: make_plan(scene, camera, lights, gpu.origin, params))
             # Every map is a 2D or 2D array texture (cube faces and cascades are layers).
             check_map_sizes((lp.map_size for lp in plan.map_lights), self.context.max_texture_size)
-            timings["plan"] = time.perf_counter() - t
+            timings["plan"] += time.perf_counter() - t
 
             t = time.perf_counter()
             maps = self.light_pass.render(gpu, plan.lights, params.shadows, scene.key)
@@ -446,7 +514,8 @@ class Renderer:
         result.warnings = list(plan.warnings)
         result.plan = self._plan_report(plan, params, hit)
         result.plan["plan_cache"] = "hit" if plan_hit else "miss"
-        result.plan["camera"] = _camera_report(camera, scene)
+        result.plan["camera"] = {k: list(v) if isinstance(v, list) else v
+                                 for k, v in prep.camera_report.items()}
         cached = {m.plan.index for m in maps if m.cached}
         for i, (lp, d) in enumerate(zip(plan.lights, result.plan["lights"], strict=True)):
             if lp.kind is not None:
@@ -464,19 +533,6 @@ class Renderer:
         timings["total"] = time.perf_counter() - t0
         result.timings = {k: round(v, 6) for k, v in timings.items()}
         return result
-
-    def _plan(self, scene: Scene, camera: Camera, lights: list[Light], origin: np.ndarray,
-              params: RenderParams) -> tuple[RenderPlan, bool]:
-        """:func:`make_plan`, or the plan made before for the same inputs; (plan, cache hit).
-
-        A plan is a pure function of the scene (its content key), the resolved camera and
-        lights, the origin and the request, and is immutable: a repeated request (a client
-        polling one view, a batch re-run) plans nothing.
-        """
-        key = plan_key(scene, camera, lights, origin, params) if self.plans.enabled else ""
-        plan, _, hit = self.plans.get_or_make(
-            key, lambda: make_plan(scene, camera, lights, origin, params))
-        return plan, hit
 
     @staticmethod
     def _plan_report(plan: RenderPlan, params: RenderParams, hit: bool) -> dict[str, Any]:
@@ -524,14 +580,19 @@ def _camera_report(camera: Camera, scene: Scene) -> dict[str, Any]:
 
 
 def plan_key(scene: Scene, camera: Camera, lights: list[Light], origin: np.ndarray,
-             params: RenderParams) -> str:
-    """Everything :func:`make_plan` reads, as one content key ("" for a scene without a key)."""
+             params: RenderParams, params_json: str | None = None) -> str:
+    """Everything :func:`make_plan` reads, as one content key ("" for a scene without a key).
+
+    ``params_json``: ``params.model_dump_json()`` when the caller has it already.
+    """
     if not scene.key:
         return ""
+    if params_json is None:
+        params_json = params.model_dump_json()
     parts = [scene.key.encode(), np.asarray(origin, np.float64).tobytes(),
              camera.pose.tobytes(),
              repr((camera.yfov, camera.width, camera.height, camera.znear, camera.zfar)).encode(),
-             params.model_dump_json().encode()]
+             params_json.encode()]
     for lt in lights:
         parts += [lt.position.tobytes(), lt.direction.tobytes(), np.asarray(lt.color).tobytes(),
                   repr((lt.type, lt.intensity, lt.inner_cone, lt.outer_cone, lt.range,

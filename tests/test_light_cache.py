@@ -169,3 +169,21 @@ def test_a_repeated_request_plans_nothing(renderer, demo):
     other = renderer.render(demo, {**params, "specular": 0.5})
     assert other.plan["plan_cache"] == "miss"  # any change of the request plans again
     assert _same(first.color, second.color)
+
+
+@pytest.mark.gl
+def test_a_request_model_changed_in_place_is_prepared_again(renderer, demo):
+    """A repeated request reuses its validated camera, lights and plan key; the same model
+    changed in place is a new request."""
+    params = RenderParams.model_validate(orbit(2, fit="view", map_size=256))
+    first = renderer.render(demo, params)
+    assert renderer.render(demo, params).plan["plan_cache"] == "hit"
+    params.camera.eye = [3.0, 2.0, 1.0]  # in place: the same object, another request
+    moved = renderer.render(demo, params)
+    assert moved.plan["camera"]["eye"] == pytest.approx([3.0, 2.0, 1.0])
+    assert not _same(moved.color, first.color)
+    fresh = renderer.render(load_scene(demo_glb()), params)
+    assert _same(moved.color, fresh.color)
+    # The caller's lists in the result are their own.
+    moved.plan["camera"]["eye"].append(0.0)
+    assert len(renderer.render(demo, params).plan["camera"]["eye"]) == 3

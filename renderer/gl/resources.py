@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import itertools
+from collections import OrderedDict
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -339,6 +340,11 @@ class SlotMap(Mapping[int, tuple[int, int]]):
         return iter(range(len(self._slot)))
 
 
+#: Instance sets up to this size are memoised by :meth:`GpuScene.groups`, this many per upload.
+_GROUPS_MEMO_MAX = 4096
+_GROUPS_MEMO_ENTRIES = 32
+
+
 @dataclass(eq=False)
 class GpuScene:
     """A scene uploaded to one context, positioned relative to ``origin``.
@@ -372,6 +378,9 @@ class GpuScene:
     blended: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     nbytes: int = 0
     indirect: IndirectBuffer | None = None
+    # groups() of recent calls, by (instances, split): a repeated request asks for the same.
+    _groups: OrderedDict[tuple[bytes, int], tuple[np.ndarray | None, list]] = field(
+        default_factory=OrderedDict, repr=False)
 
     @property
     def slot_of(self) -> SlotMap:
@@ -476,6 +485,24 @@ class GpuScene:
             In the order in which ``instances`` first reach each group; ``slots`` (intp) in the
             order of ``instances``. ``flag`` is False without ``split``.
         """
+        inst = np.asarray(instances, dtype=np.intp).reshape(-1)
+        # Small sets are memoised (their key is the indices' bytes): for them the grouping's
+        # fixed cost is the whole cost, and frames repeat their sets.
+        memo = (inst.tobytes(), id(split)) if len(inst) <= _GROUPS_MEMO_MAX else None
+        if memo is not None:
+            hit = self._groups.get(memo)
+            if hit is not None and hit[0] is split:
+                self._groups.move_to_end(memo)
+                return hit[1]
+        out = self._grouped(inst, split)
+        if memo is not None:
+            self._groups[memo] = (split, out)
+            while len(self._groups) > _GROUPS_MEMO_ENTRIES:
+                self._groups.popitem(last=False)
+        return out
+
+    def _grouped(self, instances: np.ndarray, split: np.ndarray | None
+                 ) -> list[tuple[int, bool, np.ndarray]]:
         inst, key = self._group_keys(instances, split)
         if not len(inst):
             return []
@@ -487,6 +514,7 @@ class GpuScene:
         # A stable sort puts each group's first instance at its head.
         by_first = np.argsort(order[heads])
         slots = self.slot[inst[order]]
+        slots.flags.writeable = False  # shared by the memo's callers
         return [(int(k[a]) // 2, bool(k[a] & 1), slots[a:b])
                 for a, b in zip(heads[by_first].tolist(), bounds[1:][by_first].tolist(),
                                 strict=True)]

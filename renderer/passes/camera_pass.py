@@ -53,6 +53,9 @@ class CameraPass:
         self._fbo_key: tuple | None = None
         self._white = 0
         self.variants: set[tuple] = set()  # defines of the programs drawn with, per frame
+        # The last frame's state, by (plan, request, maps' plans, visibility targets): a
+        # repeated request (the same plan and request objects) reuses it and its defines.
+        self._frame: tuple[RenderPlan, RenderParams, tuple, _FrameState] | None = None
 
     def _framebuffer(self, width: int, height: int, vis_targets: int) -> Framebuffer:
         key = (width, height, vis_targets)
@@ -97,11 +100,7 @@ class CameraPass:
         GL.glDepthMask(GL.GL_TRUE)
         GL.glDisable(GL.GL_BLEND)
 
-        view = plan.camera.view.copy()
-        view[:3, 3] += view[:3, :3] @ plan.origin  # world-relative-to-origin -> camera
-        view_proj = cam.projection @ view
-        frame = _FrameState(plan, maps, params, view_proj, cam.position - plan.origin, vis_targets,
-                            generic=not params.optimize)
+        frame = self._frame_state(plan, maps, params, vis_targets)
         units = self._bind_maps(maps)
         arrays = instance_arrays(gpu.scene)
         # Instances of one primitive with different receive flags are drawn apart (the flag is
@@ -130,6 +129,26 @@ class CameraPass:
             GL.glDepthMask(GL.GL_TRUE)
             GL.glDisable(GL.GL_BLEND)
 
+    def _frame_state(self, plan: RenderPlan, maps: list[ShadowMap], params: RenderParams,
+                     vis_targets: int) -> _FrameState:
+        """The frame's defines and uniforms: the last frame's again for the same plan, request
+        and maps' plans (the maps' textures are bound anew by _bind_maps)."""
+        sig = (tuple(id(m.plan) for m in maps), vis_targets)
+        last = self._frame
+        if last is not None and last[0] is plan and last[1] is params and last[2] == sig:
+            frame = last[3]
+            frame.maps = maps
+            frame.ready = set()
+            return frame
+        cam = plan.camera
+        view = cam.view.copy()
+        view[:3, 3] += view[:3, :3] @ plan.origin  # world-relative-to-origin -> camera
+        view_proj = cam.projection @ view
+        frame = _FrameState(plan, maps, params, view_proj, cam.position - plan.origin, vis_targets,
+                            generic=not params.optimize)
+        self._frame = (plan, params, sig, frame)
+        return frame
+
     def _bind_maps(self, maps: list[ShadowMap]) -> list[int]:
         """Bind every map to its own texture unit (from 1; unit 0 is the base colour texture)."""
         units = []
@@ -147,8 +166,8 @@ class CameraPass:
         for p, receive, slots in groups:
             gp = gpu.primitives[p]
             mat = gp.material
-            defines = frame.defines(gp, mat)
-            self.variants.add(tuple(sorted(defines.items())))
+            defines, variant = frame.variant(gp)
+            self.variants.add(variant)
             prog = self.programs.get("camera_pass.vert", "camera_pass.frag", defines)
             prog.use()
             if prog.id not in frame.ready:  # uniforms stay with the program: once per frame
@@ -214,6 +233,7 @@ class CameraPass:
         return out
 
     def release(self) -> None:
+        self._frame = None
         if self.fbo is not None:
             self.fbo.release()
             self.fbo = None
@@ -251,6 +271,7 @@ class _FrameState:
         self.view_proj, self.eye, self.vis_targets = view_proj, eye, vis_targets
         self.generic = generic
         self.ready: set[int] = set()  # programs whose frame uniforms are set
+        self._variants: dict[int, tuple[GpuPrimitive, dict[str, int | bool | str], tuple]] = {}
         lights = [lp.light for lp in plan.lights]
         self.n_2d = sum(1 for m in maps if _family(m) == "2d")
         self.n_cube = sum(1 for m in maps if _family(m) == "cube")
@@ -283,6 +304,15 @@ class _FrameState:
 
     def alpha_mask(self, mat: Material) -> bool:
         return self.generic or mat.alpha_mode == "MASK"
+
+    def variant(self, gp: GpuPrimitive) -> tuple[dict[str, int | bool | str], tuple]:
+        """:meth:`defines` of a primitive and its sorted items (the variant's name), once per
+        primitive and frame state."""
+        hit = self._variants.get(id(gp))
+        if hit is None or hit[0] is not gp:
+            d = self.defines(gp, gp.material)
+            hit = self._variants[id(gp)] = (gp, d, tuple(sorted(d.items())))
+        return hit[1], hit[2]
 
     def defines(self, gp: GpuPrimitive, mat: Material) -> dict[str, int | bool | str]:
         shadows = self.params.shadows

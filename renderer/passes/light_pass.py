@@ -119,9 +119,26 @@ class LightPass:
         self.pool_size = pool_size
         self.variants: set[tuple] = set()  # defines of the programs drawn with, per frame
         self._taken: set[int] = set()  # framebuffers the current frame draws or samples
+        # map_key() by light plan (see _map_key); the plan is held, so its id stays its own.
+        self._keys: dict[int, tuple[LightShadow, tuple, str]] = {}
         # An evicted map's framebuffer goes back to the pool: the next map of its shape reuses it.
         self.cache: BoundedCache[tuple[tuple, Framebuffer]] = BoundedCache(
             cache_entries, cache_bytes, size=lambda e: e[1].nbytes, on_evict=self._unkeep)
+
+    def _map_key(self, scene_key: str, origin: np.ndarray, lp: LightShadow,
+                 shadows: ShadowParams) -> str:
+        """:func:`map_key`, once per light plan: a plan is immutable, and a repeated request's
+        plan is the same object (the renderer's plan cache), so its maps' keys are too."""
+        settings = (scene_key, np.asarray(origin, np.float64).tobytes(), shadows.encoding,
+                    tuple(shadows.bias.polygon_offset))
+        hit = self._keys.get(id(lp))
+        if hit is not None and hit[0] is lp and hit[1] == settings:
+            return hit[2]
+        key = map_key(scene_key, origin, lp, shadows)
+        self._keys[id(lp)] = (lp, settings, key)
+        while len(self._keys) > 4 * max(self.cache.max_entries, 1):
+            self._keys.pop(next(iter(self._keys)))
+        return key
 
     def _unkeep(self, entry: tuple[tuple, Framebuffer]) -> None:
         pool_key, fb = entry
@@ -187,7 +204,7 @@ class LightPass:
                 continue
             layers = len(lp.cascades)
             size = lp.cascades[0].map_size if layers else lp.map_size
-            key = map_key(scene_key, gpu.origin, lp, shadows) if self.cache.enabled else ""
+            key = self._map_key(scene_key, gpu.origin, lp, shadows) if self.cache.enabled else ""
             hit = self.cache.get(key) if key else None
             if hit is not None:
                 taken.add(id(hit[1]))
