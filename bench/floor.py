@@ -5,12 +5,16 @@ Per scene, at 640x480 with default settings, frames interleaved:
 - **ours**: ``Renderer.render`` of the scene with its lights casting shadows (the colour output,
   read back), wall time, every frame drawing its light pass (the light-map cache emptied first);
 - **ours unshadowed**: the same with ``cast_shadows: false``;
-- **floor**: the same work through plain PyOpenGL with nothing else in the way: every instance's
-  triangles pre-transformed into one vertex buffer; per map our plan renders (each cascade, each
-  cube face), one depth-only draw of exactly the casters the plan draws, into a depth texture of
-  the plan's map size; one untextured Lambert draw of the instances the camera pass draws, into
-  an RGBA8 + depth framebuffer; ``glReadPixels`` of the colour into a NumPy array. A
-  ``glFinish`` before, the read-back ends it: no Python between the calls but the calls;
+- **floor** (the target's): the GL work alone, with nothing else in the way: per map our plan
+  renders (each cascade, each cube face), one depth-only draw through plain PyOpenGL of exactly
+  the casters the plan draws (every instance's triangles pre-transformed into one vertex
+  buffer), into a depth texture of the plan's map size; then our own camera pass with no shadow
+  code (the unshadowed variant: the same lights, textures and shading) and its read-back,
+  replayed as the GL calls one render made (:class:`ShadingReplay`). A ``glFinish`` before, the
+  read-back ends it: no Python between the calls but the calls;
+- **Lambert floor**: the same light pass, then one untextured Lambert draw of the instances the
+  camera pass draws through plain PyOpenGL, into an RGBA8 + depth framebuffer, and
+  ``glReadPixels`` of the colour into a NumPy array: what is left with the cheapest shading;
 - **Python per frame**: the share of our frame spent outside OpenGL calls (every ``gl*``
   function timed for the measurement, PyOpenGL's wrapper, the driver's work and the waits
   included), applied to the uninstrumented wall time.
@@ -108,14 +112,16 @@ class Floor:
         # Every map the plan renders: (size, view-projection, caster ranges).
         self.maps = []
         for lp in plan.map_lights:
-            views = [lp.face_views[f] for f in lp.faces] if lp.kind == "cube" else [lp.view]
-            for view in views:
-                self.maps.append((lp.map_size, (lp.proj @ view).astype(np.float32),
-                                  self._ranges(lp.casters)))
-        self.textures: dict[int, tuple[int, int]] = {}
-        for size, _, _ in self.maps:
-            if size not in self.textures:
-                self.textures[size] = self._depth_target(size)
+            for m in lp.maps:  # each cascade, or the light's one map
+                views = [m.face_views[f] for f in m.faces] if m.kind == "cube" else [m.view]
+                for view in views:
+                    self.maps.append((m.map_size, (m.proj @ view).astype(np.float32),
+                                      self._ranges(m.casters)))
+        # One depth texture per map, as ours has (a cube face, a cascade each): maps sharing
+        # one target would let the driver drop all but the last (a clear discards the work
+        # queued for the target before it).
+        self.textures: dict[int, tuple[int, int]] = {
+            k: self._depth_target(size) for k, (size, _, _) in enumerate(self.maps)}
         cam = plan.camera
         self.width, self.height = cam.width, cam.height
         view = np.linalg.inv(cam.pose.copy())
@@ -166,19 +172,31 @@ class Floor:
 
     def frame(self) -> np.ndarray:
         """One light pass + camera pass + read-back; returns the (bottom-up) RGBA pixels."""
+        self.light()
+        return self.camera()
+
+    def light(self) -> None:
+        """Every map's depth-only draw."""
         GL = self.GL
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDisable(GL.GL_CULL_FACE)
         GL.glBindVertexArray(self.vao)
         GL.glUseProgram(self.depth_prog)
         loc = GL.glGetUniformLocation(self.depth_prog, "u_mvp")
-        for size, mvp, (first, count, n) in self.maps:
-            GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.textures[size][0])
+        for k, (size, mvp, (first, count, n)) in enumerate(self.maps):
+            GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.textures[k][0])
             GL.glViewport(0, 0, size, size)
             GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
             GL.glUniformMatrix4fv(loc, 1, GL.GL_TRUE, mvp)
             if n:
                 GL.glMultiDrawArrays(GL.GL_TRIANGLES, first, count, n)
+
+    def camera(self) -> np.ndarray:
+        """The untextured Lambert draw and the read-back."""
+        GL = self.GL
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDisable(GL.GL_CULL_FACE)
+        GL.glBindVertexArray(self.vao)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         GL.glViewport(0, 0, self.width, self.height)
         GL.glClearColor(1.0, 1.0, 1.0, 1.0)
@@ -215,6 +233,64 @@ class Floor:
         GL.glDeleteProgram(self.camera_prog)
 
 
+def _gl_functions() -> dict:
+    from OpenGL import GL
+
+    return {n: getattr(GL, n) for n in dir(GL) if n.startswith("gl") and callable(getattr(GL, n))}
+
+
+class ShadingReplay:
+    """Our own camera pass with no shadow code, and its read-back, as plain GL calls.
+
+    One warm render of the unshadowed request (the same lights with ``cast_shadows: false``:
+    the camera-pass variant without maps, our shading otherwise) is recorded call by call
+    (every ``gl*`` function the camera pass and its read-back call, with their arguments), and
+    :meth:`replay` issues the same calls again with nothing but the calls between them. GL
+    state a call does not set again (a program's uniforms, which ``Program.set`` sends only
+    when they change) is what the unshadowed renders leave, the same values.
+    """
+
+    def __init__(self, r: Renderer, scene: Scene, params: RenderParams) -> None:
+        from OpenGL import GL
+
+        r.render(scene, params)  # programs, upload, framebuffers
+        calls: list[tuple] = []
+        recording = [False]
+        originals = _gl_functions()
+
+        def recorded(f):
+            def call(*args, **kwargs):
+                if recording[0]:
+                    calls.append((f, args, kwargs))
+                return f(*args, **kwargs)
+            return call
+
+        def during(f):
+            def call(*args, **kwargs):
+                recording[0] = True
+                try:
+                    return f(*args, **kwargs)
+                finally:
+                    recording[0] = False
+            return call
+
+        cp = r.camera_pass
+        for name, f in originals.items():
+            setattr(GL, name, recorded(f))
+        cp.render, cp.read = during(cp.render), during(cp.read)  # type: ignore[method-assign]
+        try:
+            r.render(scene, params)
+        finally:
+            del cp.render, cp.read
+            for name, f in originals.items():
+                setattr(GL, name, f)
+        self.calls = calls
+
+    def replay(self) -> None:
+        for f, args, kwargs in self.calls:
+            f(*args, **kwargs)
+
+
 def python_share(fn, repeats: int = 5) -> float:
     """Fraction of ``fn``'s wall time spent outside OpenGL calls.
 
@@ -227,8 +303,7 @@ def python_share(fn, repeats: int = 5) -> float:
 
     spent = [0.0]
     clock = time.perf_counter
-    originals = {n: getattr(GL, n) for n in dir(GL)
-                 if n.startswith("gl") and callable(getattr(GL, n))}
+    originals = _gl_functions()
 
     def timed(f):
         def call(*args, **kwargs):
@@ -349,6 +424,13 @@ def run(quick: bool, repeats: int) -> None:
             p_un = bs.params(lights=C.without_shadows(bs.lights))
             plan = plan_for(r, bs.scene, p_sh)
             floor = Floor(bs.scene, plan)
+            shading = ShadingReplay(r, bs.scene, p_un)
+
+            def floor_ours(floor: Floor = floor, shading: ShadingReplay = shading) -> None:
+                floor.GL.glFinish()
+                floor.light()
+                shading.replay()
+
             try:
                 # Each of our frames draws its light pass, as the floor does: the map cache
                 # is emptied first (its framebuffers go back to the pool, nothing is freed).
@@ -356,22 +438,26 @@ def run(quick: bool, repeats: int) -> None:
                     "ours": lambda bs=bs, p=p_sh: fresh_maps(r).render(bs.scene, p),
                     "unshadowed": lambda bs=bs, p=p_un: r.render(bs.scene, p),
                     "floor": floor.timed,
+                    "floor_ours": floor_ours,
                 }, repeats, warmup=2)
             finally:
                 floor.release()
             share = python_share(lambda bs=bs, p=p_sh: fresh_maps(r).render(bs.scene, p))
             ours, un, fl = t["ours"].ms(), t["unshadowed"].ms(), t["floor"].ms()
+            fo = t["floor_ours"].ms()
             py_ms = share * ours
-            ratio = ours / fl
-            rows.append([bs.name, C.fmt(ours, 2), C.fmt(un, 2), C.fmt(fl, 2),
+            ratio = ours / fo
+            rows.append([bs.name, C.fmt(ours, 2), C.fmt(un, 2), C.fmt(fo, 2),
                          C.fmt(ratio, 2) + ("" if ratio <= TARGET_RATIO else " ✗"),
+                         C.fmt(fl, 2), C.fmt(ours / fl, 2),
                          C.fmt(py_ms, 2), C.fmt(t["ours"].ms("plan"), 2)])
             csv_rows.append({
                 "scene": bs.name, "triangles": bs.scene.triangle_count,
                 "instances": len(bs.scene.instances), "maps": len(floor.maps),
                 "map_size": max((m[0] for m in floor.maps), default=0),
                 "ours_ms": round(ours, 3), "ours_unshadowed_ms": round(un, 3),
-                "floor_ms": round(fl, 3), "ratio": round(ratio, 4),
+                "floor_ms": round(fo, 3), "ratio": round(ratio, 4),
+                "lambert_floor_ms": round(fl, 3), "lambert_ratio": round(ours / fl, 4),
                 "python_ms": round(py_ms, 3), "python_share": round(share, 4),
                 "plan_ms": round(t["ours"].ms("plan"), 3),
                 "light_ms": round(t["ours"].ms("light"), 3),
@@ -398,13 +484,16 @@ def run(quick: bool, repeats: int) -> None:
         r.close()
     ratios = [c["ratio"] for c in csv_rows]
     gmean = float(np.exp(np.mean(np.log(ratios))))
+    gmean_lambert = float(np.exp(np.mean(np.log([c["lambert_ratio"] for c in csv_rows]))))
     headers = ["scene", "ours ms", "ours unshadowed ms", "floor ms", "ours / floor",
-               "Python ms", "plan ms"]
+               "Lambert floor ms", "ours / Lambert floor", "Python ms", "plan ms"]
     table = C.markdown_table(headers, rows)
     over = [c["scene"] for c in csv_rows if c["ratio"] > TARGET_RATIO]
     notes = [
         f"Geometric mean of ours / floor: {gmean:.2f}x (target <= {TARGET_RATIO}x; "
         + (f"over it (✗): {', '.join(over)})." if over else "met on every scene)."),
+        f"Geometric mean of ours / Lambert floor: {gmean_lambert:.2f}x (plain shading: what "
+        "our shading itself costs over the cheapest one is in it).",
         "Python per frame: "
         + ", ".join(f"{c['scene']} {c['python_ms']:.2f} ms" for c in csv_rows
                     if c["scene"] in ("Duck", instances_name()))
@@ -427,10 +516,13 @@ def run(quick: bool, repeats: int) -> None:
         "640x480, default settings (`RenderParams()`), colour output read back. Median wall "
         f"time of {repeats} calls after two warm-ups, the three interleaved; each of our "
         "shadowed frames draws its light pass (the light-map cache emptied first). The floor is "
-        "plain PyOpenGL over the same geometry: one depth-only draw of the plan's casters per "
-        "map (same sizes, same cascades and cube faces), one untextured Lambert draw of the "
-        "visible instances, `glReadPixels` (see `bench/floor.py`). Python ms: the share of our "
-        "frame outside OpenGL calls (each timed) times its wall time.",
+        "the GL work alone: one depth-only draw of the plan's casters per map through plain "
+        "PyOpenGL (same sizes, same cascades and cube faces), then our own camera pass without "
+        "any shadow code (the unshadowed variant, same lights, textures and shading) and its "
+        "`glReadPixels`, replayed as the GL calls one render made, with nothing between them. "
+        "The Lambert floor draws one untextured Lambert pass of the visible instances through "
+        "plain PyOpenGL instead of our camera pass (see `bench/floor.py`). Python ms: the share "
+        "of our frame outside OpenGL calls (each timed) times its wall time.",
         "",
         table,
         "",
