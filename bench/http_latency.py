@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {r['workers']} | {r['p50']:.1f} | {r['p95']:.1f} | {over:+.0f} % | "
                      f"{r['throughput']:.1f} |")
     lines += ["", f"{n} sequential requests and {2 * n} concurrent ones per row; multipart upload "
-              f"of the .glb, PNG response. Target: HTTP adds at most 25 % at p50. "
+              f"of the .glb, PNG response. Target: HTTP p50 at most 1.15x the library render. "
               f"{os.cpu_count()} CPU cores, "
               f"PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM')}."]
     text = "\n".join(lines)

@@ -372,7 +372,9 @@ def run(quick: bool, repeats: int, sizes: tuple[int, ...], plan_only: bool,
             bar.step(f"{n} {v.name} first render")
         def render(n: int, view: View) -> Callable[[], object]:
             def run() -> object:
-                # A repeated request would take its plan and maps from the caches: time the work.
+                # A repeated request would take its checks, plan and maps from the caches: time
+                # the work.
+                r.requests.clear()
                 r.plans.clear()
                 r.light_pass.cache.clear()
                 return r.render(scenes[n], params_for(view.camera(n)))

@@ -238,8 +238,8 @@ class Renderer:
         #: Each source scene's own floor (see :meth:`_own_floor`), by the source object.
         self._floors: OrderedDict[int, tuple[weakref.ref[Scene], Instance | None]] = OrderedDict()
         #: Each request's preparation (see :meth:`_prepare`), by (source scene, request JSON).
-        self._prepared: OrderedDict[tuple[int, str], tuple[weakref.ref[Scene], tuple, _Prepared]]
-        self._prepared = OrderedDict()
+        self.requests: OrderedDict[tuple[int, str], tuple[weakref.ref[Scene], tuple, _Prepared]]
+        self.requests = OrderedDict()
         self._closed = False
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -252,7 +252,7 @@ class Renderer:
         try:
             self.context.make_current()
             self._grounded.clear()
-            self._prepared.clear()
+            self.requests.clear()
             self.uploads.clear()
             self.light_pass.release()
             self.camera_pass.release()
@@ -417,17 +417,17 @@ class Renderer:
         key = (id(scene), params.model_dump_json()) if self.cache_entries > 0 else None
         state = _ground_state(scene)
         if key is not None:
-            hit = self._prepared.get(key)
+            hit = self.requests.get(key)
             if hit is not None and hit[0]() is scene and _same_state(hit[1], state):
-                self._prepared.move_to_end(key)
+                self.requests.move_to_end(key)
                 return hit[2], False
         prep = self._prepare_new(scene, params, key[1] if key else None)
         if key is not None:
-            for k in [k for k, v in self._prepared.items() if v[0]() is None]:
-                del self._prepared[k]  # their scenes are gone (an id may be reused)
-            self._prepared[key] = (weakref.ref(scene), state, prep)
-            while len(self._prepared) > 2 * self.cache_entries:
-                self._prepared.popitem(last=False)
+            for k in [k for k, v in self.requests.items() if v[0]() is None]:
+                del self.requests[k]  # their scenes are gone (an id may be reused)
+            self.requests[key] = (weakref.ref(scene), state, prep)
+            while len(self.requests) > 2 * self.cache_entries:
+                self.requests.popitem(last=False)
         return prep, True
 
     def _prepare_new(self, scene: Scene, params: RenderParams,
