@@ -2,7 +2,10 @@
 
 Starts the real service (``shadowmap serve``) with 1 and then 2 worker processes on a free
 localhost port, posts a real model, and reports latency (p50, p95) of sequential requests and the
-throughput of concurrent clients, next to the median time of the same render in-process.
+throughput of concurrent clients, next to the median time of the same render in-process. The
+sequential requests alternate with the in-process renders (one each, in turn), so that both
+medians come from the same minutes of this noisy machine; the service's ``Server-Timing`` says
+where the rest of a request's time goes.
 
     python bench/http_latency.py [--quick] [--model Duck.glb] [--requests 40]
 """
@@ -46,24 +49,29 @@ def progress(done: int, total: int, label: str) -> None:
           end="" if done < total else "\n", file=sys.stderr, flush=True)
 
 
-def library_ms(data: bytes, repeats: int) -> tuple[float, float]:
-    """Median wall time of the same render in-process: (scene parsed once, parsed every time).
+class Library:
+    """The same render in-process: the scene parsed once (the service keeps parsed uploads by
+    hash, so a repeated upload compares with this), or parsed from the file's bytes every time."""
 
-    The service keeps parsed scenes by upload hash, so a repeated upload compares with the first.
-    """
-    params = RenderParams(**PARAMS)
-    with Renderer() as r:
-        scene = load_scene(data)
-        r.render(scene, params)  # warm-up: shaders, upload
-        cached, parsed = [], []
-        for _ in range(repeats):
-            t = time.perf_counter()
-            r.render(scene, params)
-            cached.append(time.perf_counter() - t)
-            t = time.perf_counter()
-            r.render(load_scene(data), params)
-            parsed.append(time.perf_counter() - t)
-    return float(np.median(cached) * 1000), float(np.median(parsed) * 1000)
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.params = RenderParams(**PARAMS)
+        self.r = Renderer()
+        self.scene = load_scene(data)
+        self.r.render(self.scene, self.params)  # warm-up: shaders, upload
+
+    def cached(self) -> float:
+        t = time.perf_counter()
+        self.r.render(self.scene, self.params)
+        return time.perf_counter() - t
+
+    def parsed(self) -> float:
+        t = time.perf_counter()
+        self.r.render(load_scene(self.data), self.params)
+        return time.perf_counter() - t
+
+    def close(self) -> None:
+        self.r.close()
 
 
 class Server:
@@ -102,23 +110,36 @@ class Server:
             self.proc.kill()
 
 
-def post(client, url: str, data: bytes, name: str) -> float:
+def post(client, url: str, data: bytes, name: str, stages: dict | None = None) -> float:
     t = time.perf_counter()
     r = client.post(url + "/render", files={"scene": (name, data)},
                     data={"params": json.dumps(PARAMS)}, timeout=120)
     r.raise_for_status()
-    return time.perf_counter() - t
+    elapsed = time.perf_counter() - t
+    if stages is not None:
+        for item in r.headers.get("server-timing", "").split(","):
+            parts = dict(p.strip().split("=", 1) if "=" in p else (p.strip(), "")
+                         for p in item.split(";"))
+            name_ = next(iter(parts))
+            if "dur" in parts:
+                stages.setdefault(name_, []).append(float(parts["dur"]))
+    return elapsed
 
 
-def run(workers: int, data: bytes, name: str, n: int, clients: int) -> dict:
+def run(workers: int, data: bytes, name: str, n: int, clients: int, lib: Library) -> dict:
     import httpx
 
+    stages: dict[str, list[float]] = {}
     with Server(workers) as server, httpx.Client() as client:
         for _ in range(2 * workers):  # warm every worker process
             post(client, server.url, data, name)
-        latencies = []
+        latencies, cached, parsed = [], [], []
         for i in range(n):
-            latencies.append(post(client, server.url, data, name))
+            # One of each in turn: the ratio compares like with like on a noisy machine.
+            cached.append(lib.cached())
+            latencies.append(post(client, server.url, data, name, stages))
+            if i % 2 == 0:
+                parsed.append(lib.parsed())
             progress(i + 1, n, f"{workers} worker(s), sequential")
         total = n * 2
         done = 0
@@ -133,7 +154,10 @@ def run(workers: int, data: bytes, name: str, n: int, clients: int) -> dict:
         wall = time.perf_counter() - t0
     lat = np.array(latencies) * 1000
     return {"workers": workers, "p50": float(np.percentile(lat, 50)),
-            "p95": float(np.percentile(lat, 95)), "throughput": total / wall}
+            "p95": float(np.percentile(lat, 95)), "throughput": total / wall,
+            "library": float(np.median(cached) * 1000),
+            "library_parsed": float(np.median(parsed) * 1000),
+            "stages": {k: float(np.median(v)) for k, v in stages.items()}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -145,26 +169,41 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     n = 10 if args.quick else args.requests
     data = (models_dir() / args.model).read_bytes()
-    lib, lib_parsed = library_ms(data, max(5, n // 2))
-    rows = [run(w, data, args.model, n, args.clients) for w in ((1,) if args.quick else (1, 2))]
+    lib = Library(data)
+    try:
+        rows = [run(w, data, args.model, n, args.clients, lib)
+                for w in ((1,) if args.quick else (1, 2))]
+    finally:
+        lib.close()
     lines = [
         f"# HTTP latency: {args.model} with a ground plane, 640x480, default settings",
         "",
-        f"Library render in-process: median {lib:.1f} ms with the scene loaded once (the service "
-        f"keeps parsed uploads by hash), {lib_parsed:.1f} ms parsing the file every time.",
+        "Library render in-process, median of the renders interleaved with each row's "
+        "sequential requests: with the scene loaded once (the service keeps parsed uploads by "
+        "hash) and parsing the file every time.",
         "",
-        "| workers | p50 ms | p95 ms | HTTP over library at p50 | throughput, "
-        f"{args.clients} clients (renders/s) |",
-        "| ---: | ---: | ---: | ---: | ---: |",
+        "| workers | library ms | library, parsing ms | p50 ms | p95 ms | HTTP over library at "
+        f"p50 | throughput, {args.clients} clients (renders/s) |",
+        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
-        over = (r["p50"] / lib - 1) * 100
-        lines.append(f"| {r['workers']} | {r['p50']:.1f} | {r['p95']:.1f} | {over:+.0f} % | "
+        over = (r["p50"] / r["library"] - 1) * 100
+        lines.append(f"| {r['workers']} | {r['library']:.1f} | {r['library_parsed']:.1f} | "
+                     f"{r['p50']:.1f} | {r['p95']:.1f} | {over:+.0f} % | "
                      f"{r['throughput']:.1f} |")
-    lines += ["", f"{n} sequential requests and {2 * n} concurrent ones per row; multipart upload "
-              f"of the .glb, PNG response. Target: HTTP p50 at most 1.15x the library render. "
+    st = rows[0]["stages"]
+    inside = sum(v for k, v in st.items() if k != "total")
+    lines += ["", f"{n} sequential requests (each after one in-process render) and {2 * n} "
+              "concurrent ones per row; multipart upload of the .glb, PNG response. Target: HTTP "
+              "p50 at most 1.15x the library render. "
               f"{os.cpu_count()} CPU cores, "
-              f"PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM')}."]
+              f"PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM')}.",
+              "", "Where a request's time goes, one server process (medians of its "
+              "`Server-Timing`, ms): "
+              + ", ".join(f"{k} {v:.2f}" for k, v in st.items())
+              + "; the client's p50 less the server's total: "
+              f"{rows[0]['p50'] - st.get('total', 0):.2f} "
+              f"(transport, framework outside the route, event loop). Stages sum to {inside:.2f}."]
     text = "\n".join(lines)
     print(text)
     if not args.quick:
