@@ -2,10 +2,11 @@
 
 Each scene is built to exercise one rule of :mod:`shadowmap.renderer.plan` (objects outside the
 view, non-casters, a light that reaches nothing visible, cube faces without receivers, shader
-variants specialised to textured / untextured materials, outputs not requested); the real models
-exercise them all at once. The scene cache (the same bytes rendered twice) is compared with a
-renderer whose cache is off. Times are medians of repeated calls after a warm-up, the two variants
-interleaved; per-stage medians and what the plan reports as left out are listed too.
+variants specialised to textured / untextured materials, outputs not requested, shadow lookups
+only where a shadow can fall); the real models exercise them all at once. The scene cache (the
+same bytes rendered twice) is compared with a renderer whose cache is off. Times are medians of
+repeated calls after a warm-up, the two variants interleaved; per-stage medians and what the plan
+reports as left out are listed too.
 
 Writes ``bench/results/plan_savings.{md,csv}`` (``--quick``: ``bench/results/quick/``).
 
@@ -61,6 +62,8 @@ def cases(quick: bool) -> list[Case]:
              T.caster_on_ground(), {"camera": CAMERA, "lights": [LIGHT]}),
         Case("caster_on_ground, all outputs", "outputs: color, visibility, depth, light_depth",
              T.caster_on_ground(), {"camera": CAMERA, "lights": [LIGHT], "outputs": ALL_OUTPUTS}),
+        Case("Duck, lookups in shadow rectangles", "shadow lookups only where a shadow can fall",
+             C.load_model("Duck.glb"), {"shadows": {"fit": "scene"}}),
         Case("demo.glb bytes twice", "scene cache (hit vs cache off)", demo_glb(),
              {k: v for k, v in DEMO_PARAMS.items() if k != "outputs"}, cache=True),
     ]
@@ -89,6 +92,10 @@ def plan_summary(plan: dict, cache: bool = False) -> str:
         if "faces" in lp:
             bits.append(f"faces {lp['faces']}")
         parts.append(f"L{k}: " + ", ".join(bits))
+    region = plan["camera_pass"].get("shadow_region")
+    if region is not None:
+        parts.append(f"lookups in {len(region['rects'])} rectangles "
+                     f"({region['share']:.0%} of the frame)")
     variants = plan.get("shader_variants", {}).get("camera_pass")
     if variants is not None:
         parts.append(f"{len(variants)} camera variants")

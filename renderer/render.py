@@ -547,6 +547,8 @@ class Renderer:
         from .metrics import compare_all
         from .reference import trace_reference
 
+        if not lights:
+            return []  # no light, no shadow to compare
         vis = result.visibility
         if vis is None:
             # Metrics need the visibility: render it once more with the same settings.

@@ -34,6 +34,10 @@ out vec4 v_map2d[NUM_MAPS_2D];
 
 out vec3 v_world;
 out vec3 v_normal;
+// Every variant puts a vertex at the very same depth: the camera pass draws a receiver with
+// shadow lookups inside its shadow's rectangle first, then again whole without them, where the
+// depth test (GL_LESS) keeps the first draw's pixels (renderer/plan/shadow_region.py).
+invariant gl_Position;
 
 void main() {
     vec4 world = a_model * vec4(a_position, 1.0);

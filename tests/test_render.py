@@ -202,3 +202,12 @@ def test_500_renders_do_not_grow_memory(renderer):
     assert len(renderer.uploads) <= renderer.cache_entries
     assert renderer.uploads.nbytes <= renderer.cache_bytes
     assert sum(len(v) for v in renderer.light_pass.pool.values()) <= renderer.light_pass.pool_size
+
+
+def test_reference_metrics_without_lights_are_empty(renderer, demo):
+    # No light, no shadow to compare: an empty list, whatever the outputs (schemathesis found a
+    # server error here: the metrics asked for a visibility image no light has).
+    for outputs in (["color"], ["visibility"]):
+        r = renderer.render(demo, RenderParams(lights=[], reference=True, outputs=outputs,
+                                               width=32, height=24))
+        assert r.metrics == [] and r.visibility is None

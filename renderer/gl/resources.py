@@ -378,8 +378,9 @@ class GpuScene:
     blended: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     nbytes: int = 0
     indirect: IndirectBuffer | None = None
-    # groups() of recent calls, by (instances, split): a repeated request asks for the same.
-    _groups: OrderedDict[tuple[bytes, int], tuple[np.ndarray | None, list]] = field(
+    # groups() of recent calls, by (instances, split, classes): a repeated request asks for the
+    # same.
+    _groups: OrderedDict[tuple[bytes, int, int], tuple[np.ndarray | None, list]] = field(
         default_factory=OrderedDict, repr=False)
 
     @property
@@ -468,42 +469,45 @@ class GpuScene:
             raise
         return gs
 
-    def groups(self, instances: npt.ArrayLike, split: np.ndarray | None = None
-               ) -> list[tuple[int, bool, np.ndarray]]:
+    def groups(self, instances: npt.ArrayLike, split: np.ndarray | None = None,
+               classes: int = 2) -> list[tuple[int, int, np.ndarray]]:
         """Scene instances sorted out by GPU primitive, for one draw each.
 
         Parameters
         ----------
         instances : array of int
             Scene instance indices.
-        split : ndarray, shape (N,), bool, optional
-            A per-scene-instance flag that also separates groups (e.g. ``receive_shadow``).
+        split : ndarray, shape (N,), bool or int, optional
+            A per-scene-instance flag, or class in ``[0, classes)``, that also separates groups
+            (e.g. ``receive_shadow``).
+        classes : int
+            How many values ``split`` takes.
 
         Returns
         -------
         list of (GPU primitive index, flag, slots)
             In the order in which ``instances`` first reach each group; ``slots`` (intp) in the
-            order of ``instances``. ``flag`` is False without ``split``.
+            order of ``instances``. ``flag`` is the group's ``split`` value (0 without it).
         """
         inst = np.asarray(instances, dtype=np.intp).reshape(-1)
         # Small sets are memoised (their key is the indices' bytes): for them the grouping's
         # fixed cost is the whole cost, and frames repeat their sets.
-        memo = (inst.tobytes(), id(split)) if len(inst) <= _GROUPS_MEMO_MAX else None
+        memo = (inst.tobytes(), id(split), classes) if len(inst) <= _GROUPS_MEMO_MAX else None
         if memo is not None:
             hit = self._groups.get(memo)
             if hit is not None and hit[0] is split:
                 self._groups.move_to_end(memo)
                 return hit[1]
-        out = self._grouped(inst, split)
+        out = self._grouped(inst, split, classes)
         if memo is not None:
             self._groups[memo] = (split, out)
             while len(self._groups) > _GROUPS_MEMO_ENTRIES:
                 self._groups.popitem(last=False)
         return out
 
-    def _grouped(self, instances: np.ndarray, split: np.ndarray | None
-                 ) -> list[tuple[int, bool, np.ndarray]]:
-        inst, key = self._group_keys(instances, split)
+    def _grouped(self, instances: np.ndarray, split: np.ndarray | None, classes: int
+                 ) -> list[tuple[int, int, np.ndarray]]:
+        inst, key = self._group_keys(instances, split, classes)
         if not len(inst):
             return []
         order = np.argsort(key, kind="stable")
@@ -515,22 +519,22 @@ class GpuScene:
         by_first = np.argsort(order[heads])
         slots = self.slot[inst[order]]
         slots.flags.writeable = False  # shared by the memo's callers
-        return [(int(k[a]) // 2, bool(k[a] & 1), slots[a:b])
+        return [(int(k[a]) // classes, int(k[a]) % classes, slots[a:b])
                 for a, b in zip(heads[by_first].tolist(), bounds[1:][by_first].tolist(),
                                 strict=True)]
 
-    def _group_keys(self, instances: npt.ArrayLike, split: np.ndarray | None
+    def _group_keys(self, instances: npt.ArrayLike, split: np.ndarray | None, classes: int = 2
                     ) -> tuple[np.ndarray, np.ndarray]:
         """Scene instance indices as an array, and each one's group key: its GPU primitive
-        times two, plus its ``split`` flag."""
+        times ``classes``, plus its ``split`` value."""
         inst = np.asarray(instances, dtype=np.intp).reshape(-1)
-        key = self.prim_of[inst] * 2
+        key = self.prim_of[inst] * classes
         if split is not None:
-            key = key + split[inst]
+            key = key + split[inst].astype(np.intp)
         return inst, key
 
     def runs(self, instances: npt.ArrayLike, split: np.ndarray | None = None
-             ) -> list[tuple[int, bool, np.ndarray]]:
+             ) -> list[tuple[int, int, np.ndarray]]:
         """Like :meth:`groups`, but keeping the order of ``instances``: one group for each
         stretch of consecutive instances of one GPU primitive (and flag)."""
         inst, key = self._group_keys(instances, split)
@@ -539,7 +543,7 @@ class GpuScene:
         cut = np.flatnonzero(key[1:] != key[:-1]) + 1
         bounds = np.concatenate([[0], cut, [len(key)]]).tolist()
         slots = self.slot[inst]
-        return [(int(key[a]) // 2, bool(key[a] & 1), slots[a:b])
+        return [(int(key[a]) // 2, int(key[a]) % 2, slots[a:b])
                 for a, b in itertools.pairwise(bounds)]
 
     def release(self) -> None:

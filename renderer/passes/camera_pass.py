@@ -21,6 +21,7 @@ from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene
 from ..limits import MAX_CASCADES
 from ..params import RenderParams
 from ..plan import RenderPlan
+from ..plan import shadow_region as SR
 from ..scene import Material, instance_arrays
 from ..shader_constants import LIGHT_TYPES
 from .light_pass import ShadowMap
@@ -107,27 +108,69 @@ class CameraPass:
         # a uniform); without maps it changes nothing.
         receive = arrays.receive if frame.maps else None
         visible = np.asarray(plan.visible, dtype=np.intp).reshape(-1)
-        blend = gpu.blended[gpu.prim_of[visible]]  # the material is the primitive's
-        self._draw_groups(gpu, gpu.groups(visible[~blend], receive), frame, units)
-        blended = visible[blend]
+        blended = visible[gpu.blended[gpu.prim_of[visible]]]  # the material is the primitive's
         if len(blended):
             # Back to front by box centre (a stable sort on the negated distance, as the sort
-            # of one instance at a time did); no depth or visibility writes for transparent
-            # surfaces. Runs of one primitive in that order are one draw each.
+            # of one instance at a time did).
             eye = cam.position
             distance = np.linalg.norm(arrays.bounds[blended].mean(axis=1) - eye, axis=1)
             blended = blended[np.argsort(-distance, kind="stable")]
-            GL.glEnable(GL.GL_BLEND)
-            GL.glBlendFuncSeparate(GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA, GL.GL_ONE,
-                                   GL.GL_ONE_MINUS_SRC_ALPHA)
-            GL.glDepthMask(GL.GL_FALSE)
-            for i in range(vis_targets):
-                GL.glColorMaski(1 + i, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
-            self._draw_groups(gpu, gpu.runs(blended, receive), frame, units, ordered=True)
-            for i in range(vis_targets):
-                GL.glColorMaski(1 + i, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
-            GL.glDepthMask(GL.GL_TRUE)
-            GL.glDisable(GL.GL_BLEND)
+        region = plan.shadow_region
+        opaque = self._opaque(gpu, visible)
+        if not frame.maps or region is None:
+            self._draw_groups(gpu, gpu.groups(opaque, receive), frame, units)
+            self._draw_blended(gpu, gpu.runs(blended, receive), frame, units, vis_targets)
+            return
+        # Each receiver is drawn with the shadow lookups only inside the rectangle its shadows
+        # can reach, and, where it shows outside it too, whole again right after without them:
+        # the depth test (GL_LESS) keeps the pixels already drawn, the same surface at the same
+        # depth (every variant declares gl_Position invariant), and fills in the rest. Everything
+        # else is drawn once, without lookups (plan.shadow_region). The groups keep the order
+        # of a frame drawn without the region, so equal depths resolve as they would there.
+        plain = frame.without_maps()
+        for p, cls, slots in gpu.groups(opaque, region.classes, SR.classes_count()):
+            group = [(p, 1, slots)]
+            if cls < SR.LOOKUP:
+                self._draw_groups(gpu, group, plain, [])
+                continue
+            rect = region.rects[(cls - SR.LOOKUP) // 2]
+            self._draw_groups(gpu, group, frame, units,
+                              scissors=[] if region.whole(rect) else [rect])
+            if (cls - SR.LOOKUP) % 2:
+                self._draw_groups(gpu, group, plain, [])
+        # Blended surfaces write no depth: they are drawn in each part of the frame, back to
+        # front, with lookups inside the region's bounding rectangle and without outside it.
+        inside = [] if region.rect is None or region.whole(region.rect) else [region.rect]
+        if region.rect is not None:
+            self._draw_blended(gpu, gpu.runs(blended, receive), frame, units, vis_targets,
+                               inside)
+        if region.rect is None or inside:
+            self._draw_blended(gpu, gpu.runs(blended), plain, [], vis_targets,
+                               region.outside(region.rect))
+
+    @staticmethod
+    def _opaque(gpu: GpuScene, instances: np.ndarray) -> np.ndarray:
+        """The instances whose material is not blended."""
+        return instances[~gpu.blended[gpu.prim_of[instances]]]
+
+    def _draw_blended(self, gpu: GpuScene, runs: list[tuple[int, int, np.ndarray]],
+                      frame: _FrameState, units: list[int], vis_targets: int,
+                      scissors: Sequence[tuple[int, int, int, int]] = ()) -> None:
+        """Blended runs in the order given (back to front), without depth or visibility writes
+        for transparent surfaces (into each scissor rectangle, if any)."""
+        if not runs:
+            return
+        GL.glEnable(GL.GL_BLEND)
+        GL.glBlendFuncSeparate(GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA, GL.GL_ONE,
+                               GL.GL_ONE_MINUS_SRC_ALPHA)
+        GL.glDepthMask(GL.GL_FALSE)
+        for i in range(vis_targets):
+            GL.glColorMaski(1 + i, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
+        self._draw_groups(gpu, runs, frame, units, ordered=True, scissors=scissors)
+        for i in range(vis_targets):
+            GL.glColorMaski(1 + i, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
+        GL.glDepthMask(GL.GL_TRUE)
+        GL.glDisable(GL.GL_BLEND)
 
     def _frame_state(self, plan: RenderPlan, maps: list[ShadowMap], params: RenderParams,
                      vis_targets: int) -> _FrameState:
@@ -139,6 +182,8 @@ class CameraPass:
             frame = last[3]
             frame.maps = maps
             frame.ready = set()
+            if frame.bare is not None:
+                frame.bare.ready = set()
             return frame
         cam = plan.camera
         view = cam.view.copy()
@@ -159,9 +204,24 @@ class CameraPass:
         GL.glActiveTexture(GL.GL_TEXTURE0)
         return units
 
-    def _draw_groups(self, gpu: GpuScene, groups: list[tuple[int, bool, np.ndarray]],
-                     frame: _FrameState, units: list[int], ordered: bool = False) -> None:
-        """One draw per (GPU primitive, receive flag, slots) group, in the order given."""
+    def _draw_groups(self, gpu: GpuScene, groups: list[tuple[int, int, np.ndarray]],
+                     frame: _FrameState, units: list[int], ordered: bool = False,
+                     scissors: Sequence[tuple[int, int, int, int]] = ()) -> None:
+        """One draw per (GPU primitive, receive flag, slots) group, in the order given; with
+        ``scissors``, one per rectangle. The rectangles do not overlap, so each pixel still sees
+        the groups in the order given."""
+        if scissors and groups:
+            GL.glEnable(GL.GL_SCISSOR_TEST)
+            try:
+                self._draw_each(gpu, groups, frame, units, ordered, scissors)
+            finally:
+                GL.glDisable(GL.GL_SCISSOR_TEST)
+        else:
+            self._draw_each(gpu, groups, frame, units, ordered, ())
+
+    def _draw_each(self, gpu: GpuScene, groups: list[tuple[int, int, np.ndarray]],
+                   frame: _FrameState, units: list[int], ordered: bool,
+                   scissors: Sequence[tuple[int, int, int, int]]) -> None:
         plan = frame.plan
         for p, receive, slots in groups:
             gp = gpu.primitives[p]
@@ -199,7 +259,11 @@ class CameraPass:
                 GL.glEnable(GL.GL_CULL_FACE)
                 GL.glCullFace(GL.GL_BACK)
             every = not ordered and len(slots) == len(gp.instances)  # ordered: as given
-            gp.draw(None if every else slots, ordered=ordered)
+            if not scissors:
+                gp.draw(None if every else slots, ordered=ordered)
+            for rect in scissors:
+                GL.glScissor(*rect)
+                gp.draw(None if every else slots, ordered=ordered)
         GL.glDisable(GL.GL_CULL_FACE)
 
     def read(self, outputs: Sequence[str], n_lights: int, alpha: bool,
@@ -271,6 +335,7 @@ class _FrameState:
         self.view_proj, self.eye, self.vis_targets = view_proj, eye, vis_targets
         self.generic = generic
         self.ready: set[int] = set()  # programs whose frame uniforms are set
+        self.bare: _FrameState | None = None  # without_maps()
         self._variants: dict[int, tuple[GpuPrimitive, dict[str, int | bool | str], tuple]] = {}
         lights = [lp.light for lp in plan.lights]
         self.n_2d = sum(1 for m in maps if _family(m) == "2d")
@@ -298,6 +363,14 @@ class _FrameState:
         # Per 2D slot, its projection: each map's lookup code is compiled for its own.
         self.persp_2d = [int(m.plan.kind == "perspective") for m in maps if _family(m) == "2d"]
         self.cascades = [len(lp.cascades) for lp in plan.lights]
+
+    def without_maps(self) -> _FrameState:
+        """This frame's state for the pixels no shadow can reach: the same lights, outputs and
+        uniforms, no shadow maps (so no lookup code in its variants)."""
+        if self.bare is None:
+            self.bare = _FrameState(self.plan, [], self.params, self.view_proj, self.eye,
+                                    self.vis_targets, self.generic)
+        return self.bare
 
     def has_uv(self, gp: GpuPrimitive) -> bool:
         return self.generic or gp.texture is not None

@@ -244,7 +244,7 @@ class LightPass:
         self._trim(taken)
         return maps
 
-    def _draw_casters(self, gpu: GpuScene, groups: list[tuple[int, bool, np.ndarray]],
+    def _draw_casters(self, gpu: GpuScene, groups: list[tuple[int, int, np.ndarray]],
                       lp: LightShadow, view: np.ndarray, shadows: ShadowParams) -> None:
         """Draw the casters, one draw per GPU primitive (:meth:`GpuScene.groups`)."""
         perspective = lp.kind != "ortho"

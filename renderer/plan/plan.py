@@ -25,6 +25,14 @@ from .cascades import CascadeFit, plan_cascades
 from .context import PlanContext
 from .culling import select_casters
 from .fit import Fit, Skip, Subject, choose_method
+from .shadow_region import (
+    ShadowRegion,
+    divide,
+    lookup_reach,
+    receiver_rects,
+    union_rects,
+    view_projection,
+)
 
 if TYPE_CHECKING:  # the camera and lights import this package: types only, no import cycle
     from ..camera import Camera
@@ -47,8 +55,9 @@ class LightShadow:
     kind : {"ortho", "perspective", "cube"} or None
         None: no light pass (see ``reason``); the light still shades, with visibility 1.
     reason : str or None
-        Why there is no pass: "cast_shadows_false", "no_caster", "no_visible_receiver" or
-        "no_caster_in_frustum".
+        Why there is no pass: "cast_shadows_false", "no_caster", "no_visible_receiver",
+        "no_caster_in_frustum" or "no_shadow_in_view" (no caster's shadow volume reaches a
+        visible pixel of a receiver).
     view : ndarray, shape (4, 4)
         World (origin-relative) to light view (2D maps).
     proj : ndarray, shape (4, 4)
@@ -182,6 +191,9 @@ class RenderPlan:
     fit : {"view", "scene"}
         What the maps cover: the receivers the camera sees, or all of them
         (``shadows.fit``).
+    shadow_region : ShadowRegion or None
+        Where on screen any light's lookup may return less than 1
+        (:mod:`.shadow_region`); None without ``optimize``: lookups everywhere.
     """
 
     camera: Camera
@@ -193,6 +205,7 @@ class RenderPlan:
     optimize: bool
     warnings: list[str] = field(default_factory=list)
     fit: str = "view"
+    shadow_region: ShadowRegion | None = None
 
     @property
     def map_lights(self) -> list[LightShadow]:
@@ -201,9 +214,14 @@ class RenderPlan:
         return [m for lp in self.lights for m in lp.maps]
 
     def to_dict(self) -> dict[str, Any]:
+        camera_pass: dict[str, Any] = {"drawn": len(self.visible),
+                                       "skipped": {"outside_view": self.culled}}
+        if self.shadow_region is not None and self.map_lights:
+            camera_pass["shadow_region"] = self.shadow_region.to_dict(
+                np.asarray(self.visible, np.intp))
         return {
             "optimize": self.optimize,
-            "camera_pass": {"drawn": len(self.visible), "skipped": {"outside_view": self.culled}},
+            "camera_pass": camera_pass,
             "lights": [lp.to_dict() for lp in self.lights],
             "light_passes": len(self.map_lights),
             "fit": self.fit,
@@ -242,6 +260,9 @@ def make_plan(
         planned = [plan_light(shadow_ctx, i, light) for i, light in enumerate(lights)]
     else:
         planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
+    region = None
+    if params.optimize:
+        planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     return RenderPlan(
         camera=camera,
@@ -253,7 +274,39 @@ def make_plan(
         optimize=params.optimize,
         warnings=[w for w in warnings if w],
         fit=params.shadows.fit,
+        shadow_region=region,
     )
+
+
+def _shadow_region(ctx: PlanContext, planned: list[LightShadow], visible: np.ndarray
+                   ) -> tuple[list[LightShadow], ShadowRegion]:
+    """Where the lights' lookups may shade (:mod:`.shadow_region`), and the lights again, less
+    the passes of those whose shadows reach no visible pixel (kept when their light-depth image
+    is asked for)."""
+    shadows = ctx.params.shadows
+    reach = lookup_reach(shadows.pcf_kernel // 2 if shadows.filter == "pcf" else 0,
+                         shadows.bias.normal_offset)
+    camera = ctx.camera
+    view_proj = view_projection(camera, ctx.origin)
+    receivers = ctx.receivers()
+    keep_maps = "light_depth" in ctx.params.outputs
+    per_light, out = [], []
+    for lp in planned:
+        if lp.kind is not None:
+            rects = receiver_rects(lp, ctx.bounds, receivers, view_proj, camera.width,
+                                   camera.height, reach)
+            if not ((rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1])).any():
+                if not keep_maps:
+                    lp = LightShadow(index=lp.index, light=lp.light, position=lp.position,
+                                     reason="no_shadow_in_view")
+            else:
+                per_light.append(rects)
+        out.append(lp)
+    rects = np.zeros((len(ctx.receive), 4), np.int64)
+    if per_light:
+        rects[receivers] = union_rects(np.stack(per_light), axis=0)
+    return out, divide(rects, visible, ctx.receive, ctx.bounds, view_proj, camera.width,
+                       camera.height)
 
 
 def _resolution_warning(lp: LightShadow, params: RenderParams) -> str:

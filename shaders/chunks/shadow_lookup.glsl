@@ -76,10 +76,13 @@ vec4 tent_quad(vec2 k, vec2 f) {
 // Taps a PCF kernel averages over: (2R+1)^2.
 const float PCF_TAPS = float((2 * PCF_RADIUS + 1) * (2 * PCF_RADIUS + 1));
 
-// One gathered quad's share of the tent-weighted PCF sum: the quad at offset `o` (texels, from
-// -R in steps of 2) from the lookup, `f` as in lit_quad.
-float gathered_share(vec4 stored, Plane pl, vec2 f, vec2 o) {
-    return dot(lit_quad(stored, pl, f, o), tent_quad(o + float(PCF_RADIUS), f));
+// One gathered quad's share of the tent-weighted PCF sum (x) and its weight (y): the quad at
+// offset `o` (texels, from -R in steps of 2) from the lookup, `f` as in lit_quad. The weights
+// add up to PCF_TAPS but for rounding: the sum is divided by their own total, so that a pixel
+// every texel lights reads exactly 1, as it does where no lookup is drawn at all.
+vec2 gathered_share(vec4 stored, Plane pl, vec2 f, vec2 o) {
+    vec4 w = tent_quad(o + float(PCF_RADIUS), f);
+    return vec2(dot(lit_quad(stored, pl, f, o), w), dot(w, vec4(1.0)));
 }
 
 float shadow_2d(MAP2D map, vec2 uv, Plane pl, float size) {
@@ -87,14 +90,14 @@ float shadow_2d(MAP2D map, vec2 uv, Plane pl, float size) {
 #if FILTER_PCF && ENCODING == ENC_DEPTH
     vec2 f = fract(st - 0.5);
     vec2 corner = floor(st - 0.5) + 1.0;  // texel coordinates of the shared corner
-    float sum = 0.0;
+    vec2 sum = vec2(0.0);
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
             sum += gathered_share(textureGather(map, (corner + o) / size), pl, f, o);
         }
     }
-    return sum / PCF_TAPS;
+    return sum.x / sum.y;
 #else
     ivec2 texel = ivec2(clamp(floor(st), 0.0, size - 1.0));
     vec2 c = floor(st) + 0.5 - st;  // the texel centre from the lookup point
@@ -131,16 +134,17 @@ float shadow_layer(MAPARRAY map, vec2 uv, float layer, Plane pl, float size) {
 #if FILTER_PCF && ENCODING == ENC_DEPTH
     vec2 f = fract(st - 0.5);
     vec2 corner = floor(st - 0.5) + 1.0;
-    float sum = 0.0;
+    vec2 sum = vec2(0.0);
     for (int y = -PCF_RADIUS; y <= PCF_RADIUS; y += 2) {
         for (int x = -PCF_RADIUS; x <= PCF_RADIUS; x += 2) {
             vec2 o = vec2(float(x), float(y));
             vec4 stored = textureGather(map, vec3((corner + o) / size, layer));
-            sum += dot(lit_quad_clamped(stored, pl, st, corner + o - 0.5, size),
-                       tent_quad(o + float(PCF_RADIUS), f));
+            vec4 w = tent_quad(o + float(PCF_RADIUS), f);
+            sum += vec2(dot(lit_quad_clamped(stored, pl, st, corner + o - 0.5, size), w),
+                        dot(w, vec4(1.0)));
         }
     }
-    return sum / PCF_TAPS;
+    return sum.x / sum.y;  // see gathered_share
 #else
     ivec2 texel = ivec2(clamp(floor(st), 0.0, size - 1.0));
     int l = int(layer);

@@ -1,0 +1,472 @@
+"""Where on screen a shadow can fall: the camera pass looks shadows up only there.
+
+A receiver point is in a light's shadow only if a caster lies between it and the light: the point
+is inside that caster's *shadow volume*, the caster swept away from the light. The shadow-map
+lookup itself can shade a little more than that: a filtered lookup reads texels up to
+``PCF radius + 1.5`` texels from the point's own (plus the normal offset), so each caster box is
+first grown by that many texels (:func:`lookup_reach`). Per visible receiver, the screen
+rectangle around these volumes clipped to its box bounds every pixel of it that any light's lookup
+can shade; outside it the visibility is 1 for every light, and the camera pass draws those pixels
+with the variant that has no shadow code at all (:class:`ShadowRegion`): on a software rasterizer
+the lookup is a large share of a pixel's cost, and a shadow covers a small part of most frames.
+
+Everything here is a pure function of boxes, lights and the camera (numpy in, new numpy out),
+exact for boxes: the volume swept by a box is bounded per receiver box by the range of sweep
+parameters at which the moved (directional light) or scaled (point and spot light) caster box
+still overlaps the receiver box, which is a per-axis interval test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .geometry import box_corners, corner_max, corner_min
+
+if TYPE_CHECKING:  # the camera imports this package: types only, no import cycle
+    from ..camera import Camera
+    from .plan import LightShadow
+
+#: Caster-receiver pairs tested one by one at most; past that each caster is tested against the
+#: box around all visible receivers (looser, never wrong).
+MAX_PAIRS = 20_000
+#: Texels beyond the PCF radius that a lookup may read from a caster: the gathered footprint's
+#: half texel plus half a texel of rounding.
+LOOKUP_REACH_TEXELS = 2.0
+#: Distinct shadow rectangles the camera pass draws receivers in at most; more are merged.
+MAX_BINS = 4
+#: Visible receivers the camera pass splits at most: past that, drawing each one twice (with
+#: lookups inside its rectangle, without outside) costs more vertex work than the lookups it
+#: saves, and every receiver is drawn once, with lookups.
+MAX_SPLIT_RECEIVERS = 2048
+#: Camera pixels added around the projected region (rasterization rounding).
+PAD_PIXELS = 2
+#: Above this share of the frame the camera pass draws every receiver with shadow lookups:
+#: splitting would save too little to pay for drawing the geometry again.
+MAX_SPLIT_SHARE = 0.85
+
+# The 12 edges of a box in box_corners' order (corner i: x from bit 2, y from bit 1, z bit 0).
+_EDGES = np.array([(a, a | bit) for bit in (1, 2, 4) for a in range(8) if not a & bit])
+
+
+Rect = tuple[int, int, int, int]
+
+#: Draw classes of the visible instances (:attr:`ShadowRegion.classes`): drawn without lookups,
+#: receiving no shadow, or receiving none on screen; drawn with lookups inside rectangle k
+#: (``LOOKUP + 2 k``), and again whole without them (``LOOKUP + 2 k + 1``: the instance also
+#: shows outside that rectangle).
+NO_SHADOW, UNREACHED, LOOKUP = 0, 1, 2
+
+
+def classes_count() -> int:
+    """How many draw classes there are (the group key's modulus)."""
+    return LOOKUP + 2 * MAX_BINS
+
+
+@dataclass(frozen=True)
+class ShadowRegion:
+    """Where on screen some light's lookup may return less than 1, and how the camera pass
+    draws each visible instance around it.
+
+    Attributes
+    ----------
+    rect : tuple of int or None
+        ``(x, y, width, height)`` in window pixels, GL's convention (origin at the bottom-left
+        corner), around every pixel a shadow may reach; None: none can.
+    width, height : int
+        The frame's size.
+    rects : tuple of tuple of int
+        The rectangles receivers are drawn with lookups in (the scissor; the whole frame for
+        none), at most :data:`MAX_BINS`.
+    classes : ndarray, shape (N,), int8
+        Per scene instance, its draw class (:data:`NO_SHADOW`, :data:`UNREACHED`, or
+        ``LOOKUP + 2 k (+ 1)`` for rectangle k); only the visible instances' mean anything.
+    """
+
+    rect: Rect | None
+    width: int
+    height: int
+    rects: tuple[Rect, ...]
+    classes: np.ndarray
+
+    @property
+    def share(self) -> float:
+        """``rect``'s share of the frame, in [0, 1]."""
+        if self.rect is None:
+            return 0.0
+        return self.rect[2] * self.rect[3] / float(self.width * self.height)
+
+    def whole(self, rect: Rect | None) -> bool:
+        """``rect`` is the frame: no scissor."""
+        return rect == (0, 0, self.width, self.height)
+
+    def outside(self, rect: Rect | None) -> list[Rect]:
+        """The frame less ``rect`` (see :func:`outside`)."""
+        return outside(rect, self.width, self.height)
+
+    def to_dict(self, visible: np.ndarray) -> dict:
+        c = self.classes[visible]
+        return {"rect": None if self.rect is None else list(self.rect),
+                "share": round(self.share, 4),
+                "rects": [list(r) for r in self.rects],
+                "instances": {"lookup": int((c >= LOOKUP).sum()),
+                              "plain": int((c < LOOKUP).sum()),
+                              "split": int(((c >= LOOKUP) & ((c - LOOKUP) % 2 == 1)).sum())}}
+
+
+def outside(rect: Rect | None, width: int, height: int) -> list[Rect]:
+    """A frame less ``rect``, as at most four rectangles (below, above, left, right)."""
+    if rect is None:
+        return [(0, 0, width, height)]
+    x, y, w, h = rect
+    parts = [(0, 0, width, y), (0, y + h, width, height - y - h),
+             (0, y, x, h), (x + w, y, width - x - w, h)]
+    return [p for p in parts if p[2] > 0 and p[3] > 0]
+
+
+def divide(receiver_rects: np.ndarray, visible: np.ndarray, receive: np.ndarray,
+           boxes: np.ndarray, view_proj: np.ndarray, width: int, height: int) -> ShadowRegion:
+    """Sort the visible instances out by where shadows may fall on them.
+
+    Receivers with the same rectangle share it. With more than :data:`MAX_BINS` distinct
+    rectangles, or more than :data:`MAX_SPLIT_RECEIVERS` receivers to split, all receivers share
+    their bounding rectangle, and a rectangle over :data:`MAX_SPLIT_SHARE` of the frame becomes
+    the whole frame: drawing the geometry around it again would save too little.
+
+    Parameters
+    ----------
+    receiver_rects : ndarray, shape (N, 4), int
+        Per scene instance, ``(x0, y0, x1, y1)`` (exclusive ends) around the pixels where a
+        shadow may fall on it; empty (``x1 <= x0``) where none can (:func:`receiver_rects`).
+    visible : ndarray, shape (V,), intp
+        Instances the camera pass draws.
+    receive : ndarray, shape (N,), bool
+        Every instance's receive flag.
+    boxes : ndarray, shape (N, 2, 3)
+        Every instance's box, as ``view_proj`` expects.
+    """
+    visible = np.asarray(visible, np.intp)
+    classes = np.where(receive, UNREACHED, NO_SHADOW).astype(np.int8)
+    rr = receiver_rects[visible]
+    shaded = receive[visible] & (rr[:, 2] > rr[:, 0]) & (rr[:, 3] > rr[:, 1])
+    cand, rr = visible[shaded], rr[shaded]
+
+    def region(rect: Rect | None, rects: list[Rect]) -> ShadowRegion:
+        classes.flags.writeable = False
+        return ShadowRegion(rect, width, height, tuple(rects), classes)
+
+    if len(cand) == 0:
+        return region(None, [])
+    union = np.array([rr[:, 0].min(), rr[:, 1].min(), rr[:, 2].max(), rr[:, 3].max()])
+    if (rr == union).all():  # one rectangle for all
+        rects, which = union[None], np.zeros(len(cand), np.intp)
+    else:
+        rects, which = np.unique(rr, axis=0, return_inverse=True)
+        which = which.reshape(-1)
+    if len(rects) > MAX_BINS:
+        rects, which = union[None], np.zeros(len(cand), np.intp)
+    area = (rects[:, 2] - rects[:, 0]) * (rects[:, 3] - rects[:, 1])
+    rects[area > MAX_SPLIT_SHARE * width * height] = (0, 0, width, height)
+    if len(cand) > MAX_SPLIT_RECEIVERS:
+        rects, which = np.array([[0, 0, width, height]]), np.zeros(len(cand), np.intp)
+    whole = (rects == (0, 0, width, height)).all(axis=1)
+    # Receivers whose rectangle is the frame are drawn with lookups, whole: no need to know
+    # where they show.
+    on_screen = np.zeros((len(cand), 4), np.int64)
+    placed = ~whole[which]
+    on_screen[placed] = screen_rects(boxes[cand[placed]], view_proj, width, height)
+    on_screen[~placed] = (0, 0, width, height)
+    kept: list[Rect] = []
+    for k, (x0, y0, x1, y1) in enumerate(rects.tolist()):
+        mine = np.flatnonzero(which == k)
+        r = on_screen[mine]
+        live = (r[:, 2] > r[:, 0]) & (r[:, 3] > r[:, 1])
+        meets = live & (r[:, 0] < x1) & (r[:, 2] > x0) & (r[:, 1] < y1) & (r[:, 3] > y0)
+        within = (r[:, 0] >= x0) & (r[:, 2] <= x1) & (r[:, 1] >= y0) & (r[:, 3] <= y1)
+        if not meets.any():  # none of its receivers shows inside it
+            continue
+        # A receiver whose own pixels all lie outside its rectangle stays UNREACHED.
+        lookup = LOOKUP + 2 * len(kept)
+        classes[cand[mine[meets]]] = lookup + (~within[meets])
+        kept.append((x0, y0, x1 - x0, y1 - y0))
+    if not kept:
+        return region(None, [])
+    ub = np.array([[x, y, x + w, y + h] for x, y, w, h in kept])
+    x0, y0, x1, y1 = (int(v) for v in (ub[:, 0].min(), ub[:, 1].min(), ub[:, 2].max(),
+                                      ub[:, 3].max()))
+    return region((x0, y0, x1 - x0, y1 - y0), kept)
+
+
+def _swept_directional(lo: np.ndarray, hi: np.ndarray, r_lo: np.ndarray, r_hi: np.ndarray,
+                       u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of (box swept along ``u``) ∩ receiver box, per pair.
+
+    The box moved by ``s u`` overlaps the receiver box for ``s`` in an interval (one linear
+    inequality per side and axis); over that interval the moved box stays inside its two end
+    positions' hull.
+
+    Parameters
+    ----------
+    lo, hi, r_lo, r_hi : ndarray, shape (..., 3)
+        Caster and receiver boxes (broadcast against each other).
+    u : ndarray, shape (3,)
+        Unit vector the light travels along.
+
+    Returns
+    -------
+    lo, hi : ndarray, shape (..., 3)
+        Empty where ``lo > hi`` on some axis.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # Overlap on axis k: lo + s u <= r_hi and hi + s u >= r_lo.
+        a = (r_hi - lo) / u  # s bound from the first inequality
+        b = (r_lo - hi) / u  # from the second
+        pos, neg = u > 0, u < 0
+        s_min = np.where(pos, b, np.where(neg, a, -np.inf))
+        s_max = np.where(pos, a, np.where(neg, b, np.inf))
+        # An axis the light does not travel along: the boxes overlap on it or never do.
+        flat = ~(pos | neg) & ((lo > r_hi) | (hi < r_lo))
+        s0 = np.maximum(s_min.max(axis=-1), 0.0)
+        s1 = s_max.min(axis=-1)
+        s1 = np.where(flat.any(axis=-1), -np.inf, s1)
+        out_lo = np.maximum(lo + np.minimum(s0[..., None] * u, s1[..., None] * u), r_lo)
+        out_hi = np.minimum(hi + np.maximum(s0[..., None] * u, s1[..., None] * u), r_hi)
+    empty = (s0 > s1)[..., None]
+    return np.where(empty, np.inf, out_lo), np.where(empty, -np.inf, out_hi)
+
+
+def _swept_positional(lo: np.ndarray, hi: np.ndarray, r_lo: np.ndarray, r_hi: np.ndarray,
+                      light: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of (box swept away from a point light) ∩ receiver box, per pair.
+
+    The swept volume is the union over ``t >= 1`` of the box scaled by ``t`` about the light,
+    ``light + t (box - light)``, itself a box; it overlaps the receiver box for ``t`` in an
+    interval, and over that interval the scaled box stays inside its two end positions' hull.
+    A light inside the box sweeps it over everything (``t`` unbounded).
+
+    Parameters
+    ----------
+    lo, hi, r_lo, r_hi : ndarray, shape (..., 3)
+    light : ndarray, shape (3,)
+
+    Returns
+    -------
+    lo, hi : ndarray, shape (..., 3)
+        Empty where ``lo > hi`` on some axis.
+    """
+    a = lo - light  # the scaled box on axis k: [light + t a, light + t b], a <= b
+    b = hi - light
+    p = r_hi - light  # overlap: t a <= p and t b >= q
+    q = r_lo - light
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = p / a, q / b
+        lower = np.maximum(np.where(a < 0, ta, -np.inf), np.where(b > 0, tb, -np.inf))
+        upper = np.minimum(np.where(a > 0, ta, np.inf), np.where(b < 0, tb, np.inf))
+        never = ((a == 0) & (p < 0)) | ((b == 0) & (q > 0))
+        t0 = np.maximum(lower.max(axis=-1), 1.0)
+        t1 = np.where(never.any(axis=-1), -np.inf, upper.min(axis=-1))
+        # t a and t b are linear in t: their extremes over [t0, t1] are at the ends (an
+        # unbounded t1 reaches infinity on every side the box extends from the light).
+        t0e, t1e = t0[..., None], t1[..., None]
+        ends_a = np.where(a == 0, 0.0, np.minimum(t0e * a, t1e * a))
+        ends_b = np.where(b == 0, 0.0, np.maximum(t0e * b, t1e * b))
+        out_lo = np.maximum(light + ends_a, r_lo)
+        out_hi = np.minimum(light + ends_b, r_hi)
+    empty = (t0 > t1)[..., None]
+    return np.where(empty, np.inf, out_lo), np.where(empty, -np.inf, out_hi)
+
+
+def swept_bounds(casters: np.ndarray, receivers: np.ndarray, light: LightShadow,
+                 pad_texels: float) -> np.ndarray:
+    """Per caster and receiver, a box holding every point of the receiver that the caster may
+    shadow in the light's map.
+
+    Parameters
+    ----------
+    casters : ndarray, shape (C, 2, 3)
+        Caster boxes (min, max), origin-relative.
+    receivers : ndarray, shape (R, 2, 3)
+        Receiver boxes.
+    light : LightShadow
+        A light with a pass: its kind, position, direction and texel size.
+    pad_texels : float
+        Map texels each caster box grows by (the lookup's reach, :func:`lookup_reach`).
+
+    Returns
+    -------
+    ndarray, shape (C, R, 2, 3)
+        Empty boxes (min > max on some axis) where the caster cannot shadow the receiver.
+        With more than :data:`MAX_PAIRS` pairs the receivers are taken together, as their
+        bounding box: shape (C, 1, 2, 3); with more than that many casters, the casters too:
+        shape (1, 1, 2, 3). Looser, never wrong.
+    """
+    if len(casters) > MAX_PAIRS:
+        # Past that many casters, their box stands in for them (looser, never wrong).
+        casters = np.stack([casters[:, 0].min(axis=0), casters[:, 1].max(axis=0)])[None]
+    lo, hi = casters[:, 0], casters[:, 1]
+    maps = light.maps
+    positional = light.kind in ("perspective", "cube")
+    if positional:
+        # A texel's world size grows with the distance to the light: grow each box by the
+        # texel at its farthest corner (the sweep scales that pad along with the box).
+        far = np.linalg.norm(np.maximum(np.abs(lo - light.position), np.abs(hi - light.position)),
+                             axis=1)
+        pad = pad_texels * max(m.texel[1] for m in maps) * far
+    else:
+        pad = np.full(len(lo), pad_texels * max(m.texel[0] for m in maps))
+    lo, hi = (lo - pad[:, None])[:, None], (hi + pad[:, None])[:, None]  # (C, 1, 3)
+    if len(casters) * len(receivers) <= MAX_PAIRS:
+        r_lo, r_hi = receivers[None, :, 0], receivers[None, :, 1]  # (1, R, 3)
+    else:
+        r_lo = receivers[:, 0].min(axis=0)[None, None]
+        r_hi = receivers[:, 1].max(axis=0)[None, None]
+    if positional:
+        out_lo, out_hi = _swept_positional(lo, hi, r_lo, r_hi, light.position)
+    else:
+        u = np.asarray(light.light.direction, np.float64)
+        out_lo, out_hi = _swept_directional(lo, hi, r_lo, r_hi, u / np.linalg.norm(u))
+    return np.stack([out_lo, out_hi], axis=2)
+
+
+def screen_rects(boxes: np.ndarray, view_proj: np.ndarray, width: int, height: int
+                 ) -> np.ndarray:
+    """Per box, the window rectangle covering its projection, clipped to the frame.
+
+    Parts of a box behind the camera's near plane are cut off first (the corners in front of it
+    and the points where its edges cross it), so a box reaching behind the camera still projects
+    to a finite rectangle.
+
+    Parameters
+    ----------
+    boxes : ndarray, shape (K, 2, 3)
+    view_proj : ndarray, shape (4, 4)
+        World (as the boxes) to clip space.
+    width, height : int
+
+    Returns
+    -------
+    ndarray, shape (K, 4), int64
+        ``(x0, y0, x1, y1)``, GL window pixels from the bottom-left corner (x1, y1 exclusive),
+        padded by :data:`PAD_PIXELS`; ``x1 <= x0`` where no part of the box is in front of the
+        camera or inside the frame.
+    """
+    k = len(boxes)
+    out = np.zeros((k, 4), np.int64)
+    if k == 0:
+        return out
+    corners = box_corners(boxes)  # (K, 8, 3)
+    clip = corners @ view_proj.T[:3] + view_proj[:, 3]  # (K, 8, 4)
+    # In front of the near plane: z_clip >= -w.
+    front = clip[..., 2] + clip[..., 3]  # (K, 8)
+    ahead = corner_min(front[..., None])[:, 0] >= 0  # every corner in front: no cut
+    size = np.array([width, height], np.float64)
+    lo = np.full((k, 2), np.inf)
+    hi = np.full((k, 2), -np.inf)
+    if ahead.any():
+        c = clip[ahead]
+        ndc = c[..., :2] / c[..., 3:]
+        lo[ahead], hi[ahead] = corner_min(ndc), corner_max(ndc)
+    cut = np.flatnonzero(~ahead)
+    if len(cut):
+        # The plane z + w = 0 cuts the edges that cross it; keep the corners in front of it.
+        xyw = clip[cut][..., [0, 1, 3]]  # (M, 8, 3)
+        fr = front[cut]
+        ea, eb = _EDGES[:, 0], _EDGES[:, 1]
+        fa, fb = fr[:, ea], fr[:, eb]  # (M, 12)
+        crosses = (fa >= 0) != (fb >= 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(crosses, fa / (fa - fb), np.nan)
+            pts = np.concatenate([np.where((fr >= 0)[..., None], xyw, np.nan),
+                                  xyw[:, ea] + t[..., None] * (xyw[:, eb] - xyw[:, ea])], axis=1)
+            # On the near plane w is the camera's near distance: never zero.
+            ndc = pts[..., :2] / pts[..., 2:]  # (M, 20, 2)
+        keep = ~np.isnan(pts[..., 2])
+        lo[cut] = np.where(keep[..., None], ndc, np.inf).min(axis=1)
+        hi[cut] = np.where(keep[..., None], ndc, -np.inf).max(axis=1)
+    # NDC past +-2 is outside the frame either way (and keeps the products finite); a NaN (a
+    # non-finite corner) says nothing of where the box is: all of the frame.
+    wild = np.isnan(lo).any(axis=1) | np.isnan(hi).any(axis=1)
+    p0 = np.floor((np.clip(lo, -2.0, 2.0) + 1) * 0.5 * size) - PAD_PIXELS
+    p1 = np.ceil((np.clip(hi, -2.0, 2.0) + 1) * 0.5 * size) + PAD_PIXELS
+    seen = np.isfinite(lo).all(axis=1) & ~wild
+    out[seen] = np.concatenate([np.clip(p0, 0, size), np.clip(p1, 0, size)], axis=1)[seen]
+    out[wild] = (0, 0, width, height)
+    return out
+
+
+def receiver_rects(light: LightShadow, bounds: np.ndarray, receivers: np.ndarray,
+                   view_proj: np.ndarray, width: int, height: int, pad_texels: float
+                   ) -> np.ndarray:
+    """Per receiver, the window rectangle where this light's lookup may return less than 1.
+
+    Parameters
+    ----------
+    light : LightShadow
+        A light with a pass.
+    bounds : ndarray, shape (N, 2, 3)
+        Every instance's box, origin-relative.
+    receivers : ndarray, shape (R,)
+        Indices of the visible receivers.
+    view_proj : ndarray, shape (4, 4)
+        Origin-relative world to the camera's clip space (:func:`view_projection`).
+    pad_texels : float
+        See :func:`lookup_reach`.
+
+    Returns
+    -------
+    ndarray, shape (R, 4), int64
+        ``(x0, y0, x1, y1)`` (exclusive ends), empty (``x1 <= x0``) where no shadow of this
+        light can fall on the receiver.
+    """
+    out = np.zeros((len(receivers), 4), np.int64)
+    casters = sorted(set().union(*(m.casters for m in light.maps)))
+    if not casters or len(receivers) == 0:
+        return out
+    pairs = swept_bounds(bounds[casters], bounds[receivers], light, pad_texels)
+    c, r = pairs.shape[:2]
+    flat = pairs.reshape(-1, 2, 3)
+    live = np.all(flat[:, 0] <= flat[:, 1], axis=1)
+    if r == 1 and c > 1:
+        # The receivers taken together (many pairs): one box around the casters' swept boxes
+        # is all that is drawn with, so only it is projected.
+        if not live.any():
+            return out
+        sub = flat[live]
+        flat = np.stack([sub[:, 0].min(axis=0), sub[:, 1].max(axis=0)])[None]
+        live = np.ones(1, bool)
+        c = 1
+    rects = np.zeros((len(flat), 4), np.int64)
+    if live.any():
+        sub = flat[live]
+        if not np.all(np.isfinite(sub)):
+            # Only non-finite boxes can leave a sweep unclipped: lookups everywhere.
+            rects[live] = (0, 0, width, height)
+        else:
+            rects[live] = screen_rects(sub, view_proj, width, height)
+    return np.broadcast_to(union_rects(rects.reshape(c, r, 4), axis=0), out.shape).copy()
+
+
+def union_rects(rects: np.ndarray, axis: int) -> np.ndarray:
+    """The bounding rectangle of the non-empty ``(x0, y0, x1, y1)`` rectangles along ``axis``
+    (all zeros where every one is empty)."""
+    live = (rects[..., 2] > rects[..., 0]) & (rects[..., 3] > rects[..., 1])
+    big = np.iinfo(np.int64).max
+    lo = np.where(live[..., None], rects[..., :2], big).min(axis=axis)
+    hi = np.where(live[..., None], rects[..., 2:], -big).max(axis=axis)
+    out = np.concatenate([lo, hi], axis=-1)
+    out[~live.any(axis=axis)] = 0
+    return out
+
+
+def view_projection(camera: Camera, origin: np.ndarray) -> np.ndarray:
+    """The camera's view-projection matrix for origin-relative points, shape (4, 4)."""
+    view = camera.view.copy()
+    view[:3, 3] += view[:3, :3] @ origin  # origin-relative world -> camera
+    return camera.projection @ view
+
+
+def lookup_reach(pcf_radius: int, normal_offset: float) -> float:
+    """Map texels between a lookup point and the farthest texel centre its lookup compares."""
+    return pcf_radius + LOOKUP_REACH_TEXELS + normal_offset
