@@ -10,9 +10,9 @@ from gltf_files import patch_glb
 from shadowmap.renderer import RenderParams, load_scene
 from shadowmap.renderer import testing as T
 from shadowmap.renderer.camera import resolve_camera
+from shadowmap.renderer.demo import demo_glb
 from shadowmap.renderer.lights import resolve_lights
 from shadowmap.renderer.reference import trace_reference
-from shadowmap.renderer.demo import demo_glb
 
 pytestmark = pytest.mark.gl
 

@@ -217,8 +217,7 @@ class RenderPlan:
         camera_pass: dict[str, Any] = {"drawn": len(self.visible),
                                        "skipped": {"outside_view": self.culled}}
         if self.shadow_region is not None and self.map_lights:
-            camera_pass["shadow_region"] = self.shadow_region.to_dict(
-                np.asarray(self.visible, np.intp))
+            camera_pass["shadow_region"] = self.shadow_region.to_dict()
         return {
             "optimize": self.optimize,
             "camera_pass": camera_pass,

@@ -83,6 +83,8 @@ class ShadowRegion:
     classes : ndarray, shape (N,), int8
         Per scene instance, its draw class (:data:`NO_SHADOW`, :data:`UNREACHED`, or
         ``LOOKUP + 2 k (+ 1)`` for rectangle k); only the visible instances' mean anything.
+    counts : tuple of int
+        Visible instances drawn with lookups, drawn without, and drawn both ways.
     """
 
     rect: Rect | None
@@ -90,6 +92,7 @@ class ShadowRegion:
     height: int
     rects: tuple[Rect, ...]
     classes: np.ndarray
+    counts: tuple[int, int, int] = (0, 0, 0)
 
     @property
     def share(self) -> float:
@@ -106,14 +109,12 @@ class ShadowRegion:
         """The frame less ``rect`` (see :func:`outside`)."""
         return outside(rect, self.width, self.height)
 
-    def to_dict(self, visible: np.ndarray) -> dict:
-        c = self.classes[visible]
+    def to_dict(self) -> dict:
+        lookup, plain, split = self.counts
         return {"rect": None if self.rect is None else list(self.rect),
                 "share": round(self.share, 4),
                 "rects": [list(r) for r in self.rects],
-                "instances": {"lookup": int((c >= LOOKUP).sum()),
-                              "plain": int((c < LOOKUP).sum()),
-                              "split": int(((c >= LOOKUP) & ((c - LOOKUP) % 2 == 1)).sum())}}
+                "instances": {"lookup": lookup, "plain": plain, "split": split}}
 
 
 def outside(rect: Rect | None, width: int, height: int) -> list[Rect]:
@@ -152,51 +153,55 @@ def divide(receiver_rects: np.ndarray, visible: np.ndarray, receive: np.ndarray,
     rr = receiver_rects[visible]
     shaded = receive[visible] & (rr[:, 2] > rr[:, 0]) & (rr[:, 3] > rr[:, 1])
     cand, rr = visible[shaded], rr[shaded]
-
-    def region(rect: Rect | None, rects: list[Rect]) -> ShadowRegion:
-        classes.flags.writeable = False
-        return ShadowRegion(rect, width, height, tuple(rects), classes)
-
-    if len(cand) == 0:
-        return region(None, [])
-    union = np.array([rr[:, 0].min(), rr[:, 1].min(), rr[:, 2].max(), rr[:, 3].max()])
-    if (rr == union).all():  # one rectangle for all
-        rects, which = union[None], np.zeros(len(cand), np.intp)
-    else:
-        rects, which = np.unique(rr, axis=0, return_inverse=True)
-        which = which.reshape(-1)
-    if len(rects) > MAX_BINS:
-        rects, which = union[None], np.zeros(len(cand), np.intp)
-    area = (rects[:, 2] - rects[:, 0]) * (rects[:, 3] - rects[:, 1])
-    rects[area > MAX_SPLIT_SHARE * width * height] = (0, 0, width, height)
-    if len(cand) > MAX_SPLIT_RECEIVERS:
-        rects, which = np.array([[0, 0, width, height]]), np.zeros(len(cand), np.intp)
-    whole = (rects == (0, 0, width, height)).all(axis=1)
-    # Receivers whose rectangle is the frame are drawn with lookups, whole: no need to know
-    # where they show.
-    on_screen = np.zeros((len(cand), 4), np.int64)
-    placed = ~whole[which]
-    on_screen[placed] = screen_rects(boxes[cand[placed]], view_proj, width, height)
-    on_screen[~placed] = (0, 0, width, height)
-    kept: list[Rect] = []
-    for k, (x0, y0, x1, y1) in enumerate(rects.tolist()):
-        mine = np.flatnonzero(which == k)
-        r = on_screen[mine]
-        live = (r[:, 2] > r[:, 0]) & (r[:, 3] > r[:, 1])
-        meets = live & (r[:, 0] < x1) & (r[:, 2] > x0) & (r[:, 1] < y1) & (r[:, 3] > y0)
-        within = (r[:, 0] >= x0) & (r[:, 2] <= x1) & (r[:, 1] >= y0) & (r[:, 3] <= y1)
-        if not meets.any():  # none of its receivers shows inside it
-            continue
-        # A receiver whose own pixels all lie outside its rectangle stays UNREACHED.
-        lookup = LOOKUP + 2 * len(kept)
-        classes[cand[mine[meets]]] = lookup + (~within[meets])
-        kept.append((x0, y0, x1 - x0, y1 - y0))
-    if not kept:
-        return region(None, [])
-    ub = np.array([[x, y, x + w, y + h] for x, y, w, h in kept])
+    frame = (0, 0, width, height)
+    rects: list[tuple[int, int, int, int]] = []  # (x0, y0, x1, y1)
+    if len(cand):
+        union = (int(rr[:, 0].min()), int(rr[:, 1].min()), int(rr[:, 2].max()),
+                 int(rr[:, 3].max()))
+        which = np.zeros(len(cand), np.intp)
+        if len(cand) > MAX_SPLIT_RECEIVERS:
+            rects = [frame]
+        else:
+            first: dict[tuple[int, ...], int] = {}
+            which = np.array([first.setdefault(tuple(r), len(first)) for r in rr.tolist()],
+                             np.intp)
+            rects = [tuple(r) for r in first]  # type: ignore[misc]
+            if len(rects) > MAX_BINS:
+                rects, which = [union], np.zeros(len(cand), np.intp)
+        big = MAX_SPLIT_SHARE * width * height
+        rects = [frame if (x1 - x0) * (y1 - y0) > big else (x0, y0, x1, y1)
+                 for x0, y0, x1, y1 in rects]
+        # Receivers whose rectangle is the frame are drawn with lookups, whole: no need to
+        # know where they show.
+        r = np.array(rects, np.int64)[which]  # (cand, 4): each receiver's rectangle
+        placed = ~(r == frame).all(axis=1)
+        on_screen = r.copy()
+        if placed.any():
+            on_screen[placed] = screen_rects(boxes[cand[placed]], view_proj, width, height)
+        live = (on_screen[:, 2] > on_screen[:, 0]) & (on_screen[:, 3] > on_screen[:, 1])
+        meets = live & np.all(on_screen[:, :2] < r[:, 2:], axis=1) & np.all(
+            on_screen[:, 2:] > r[:, :2], axis=1)
+        within = np.all(on_screen[:, :2] >= r[:, :2], axis=1) & np.all(
+            on_screen[:, 2:] <= r[:, 2:], axis=1)
+        # Rectangles none of whose receivers shows inside go; a receiver whose own pixels all
+        # lie outside its rectangle stays UNREACHED.
+        used = sorted(set(which[meets].tolist()))
+        renumber = np.full(len(rects), -1, np.intp)
+        renumber[used] = np.arange(len(used))
+        classes[cand[meets]] = LOOKUP + 2 * renumber[which[meets]] + ~within[meets]
+        rects = [rects[k] for k in used]
+    classes.flags.writeable = False
+    c = classes[visible]
+    looked = c >= LOOKUP
+    counts = (int(looked.sum()), len(c) - int(looked.sum()),
+              int((looked & ((c - LOOKUP) % 2 == 1)).sum()))
+    if not rects:
+        return ShadowRegion(None, width, height, (), classes, counts)
+    ub = np.array(rects)
     x0, y0, x1, y1 = (int(v) for v in (ub[:, 0].min(), ub[:, 1].min(), ub[:, 2].max(),
                                       ub[:, 3].max()))
-    return region((x0, y0, x1 - x0, y1 - y0), kept)
+    return ShadowRegion((x0, y0, x1 - x0, y1 - y0), width, height,
+                        tuple((a, b, c - a, d - b) for a, b, c, d in rects), classes, counts)
 
 
 def _swept_directional(lo: np.ndarray, hi: np.ndarray, r_lo: np.ndarray, r_hi: np.ndarray,
@@ -353,47 +358,72 @@ def screen_rects(boxes: np.ndarray, view_proj: np.ndarray, width: int, height: i
         camera or inside the frame.
     """
     k = len(boxes)
-    out = np.zeros((k, 4), np.int64)
     if k == 0:
-        return out
+        return np.zeros((0, 4), np.int64)
     corners = box_corners(boxes)  # (K, 8, 3)
-    clip = corners @ view_proj.T[:3] + view_proj[:, 3]  # (K, 8, 4)
+    clip = corners @ view_proj[:, :3].T + view_proj[:, 3]  # (K, 8, 4)
     # In front of the near plane: z_clip >= -w.
     front = clip[..., 2] + clip[..., 3]  # (K, 8)
-    ahead = corner_min(front[..., None])[:, 0] >= 0  # every corner in front: no cut
-    size = np.array([width, height], np.float64)
+    ahead = front.min(axis=1) >= 0 if k < 256 else corner_min(front[..., None])[:, 0] >= 0
+    if ahead.all():
+        ndc = clip[..., :2] / clip[..., 3:]  # (K, 8, 2)
+        if k < 256:
+            lo, hi = ndc.min(axis=1), ndc.max(axis=1)
+        else:  # numpy reduces a middle axis slowly: one elementwise pass per corner instead
+            lo, hi = corner_min(ndc), corner_max(ndc)
+    else:
+        lo, hi = _clipped_extent(clip, front, ahead)
+    size = np.array([width, height, width, height], np.float64)
+    # NDC past +-2 is outside the frame either way (and keeps the products finite).
+    ext = np.clip(np.concatenate([lo, hi], axis=1), -2.0, 2.0)
+    ext = (ext + 1.0) * 0.5 * size
+    out = np.concatenate([np.floor(ext[:, :2]) - PAD_PIXELS, np.ceil(ext[:, 2:]) + PAD_PIXELS],
+                         axis=1)
+    out = np.clip(out, 0.0, size).astype(np.int64)
+    # No part in front of the camera: empty. A NaN (a non-finite corner) says nothing of where
+    # the box is: all of the frame.
+    out[~np.isfinite(lo).all(axis=1) & ~np.isnan(lo).any(axis=1)] = 0
+    out[np.isnan(lo).any(axis=1) | np.isnan(hi).any(axis=1)] = (0, 0, width, height)
+    return out
+
+
+def _clipped_extent(clip: np.ndarray, front: np.ndarray, ahead: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """NDC extent (lo, hi), shape (K, 2) each, of boxes cut at the near plane: their corners in
+    front of it and the points where their edges cross it (+-inf where nothing is in front).
+
+    Parameters
+    ----------
+    clip : ndarray, shape (K, 8, 4)
+        The corners in clip space.
+    front : ndarray, shape (K, 8)
+        ``z + w`` per corner, >= 0 in front of the near plane.
+    ahead : ndarray, shape (K,), bool
+        Boxes wholly in front (no cut needed).
+    """
+    k = len(clip)
     lo = np.full((k, 2), np.inf)
     hi = np.full((k, 2), -np.inf)
     if ahead.any():
         c = clip[ahead]
         ndc = c[..., :2] / c[..., 3:]
-        lo[ahead], hi[ahead] = corner_min(ndc), corner_max(ndc)
+        lo[ahead], hi[ahead] = ndc.min(axis=1), ndc.max(axis=1)
     cut = np.flatnonzero(~ahead)
-    if len(cut):
-        # The plane z + w = 0 cuts the edges that cross it; keep the corners in front of it.
-        xyw = clip[cut][..., [0, 1, 3]]  # (M, 8, 3)
-        fr = front[cut]
-        ea, eb = _EDGES[:, 0], _EDGES[:, 1]
-        fa, fb = fr[:, ea], fr[:, eb]  # (M, 12)
-        crosses = (fa >= 0) != (fb >= 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(crosses, fa / (fa - fb), np.nan)
-            pts = np.concatenate([np.where((fr >= 0)[..., None], xyw, np.nan),
-                                  xyw[:, ea] + t[..., None] * (xyw[:, eb] - xyw[:, ea])], axis=1)
-            # On the near plane w is the camera's near distance: never zero.
-            ndc = pts[..., :2] / pts[..., 2:]  # (M, 20, 2)
-        keep = ~np.isnan(pts[..., 2])
-        lo[cut] = np.where(keep[..., None], ndc, np.inf).min(axis=1)
-        hi[cut] = np.where(keep[..., None], ndc, -np.inf).max(axis=1)
-    # NDC past +-2 is outside the frame either way (and keeps the products finite); a NaN (a
-    # non-finite corner) says nothing of where the box is: all of the frame.
-    wild = np.isnan(lo).any(axis=1) | np.isnan(hi).any(axis=1)
-    p0 = np.floor((np.clip(lo, -2.0, 2.0) + 1) * 0.5 * size) - PAD_PIXELS
-    p1 = np.ceil((np.clip(hi, -2.0, 2.0) + 1) * 0.5 * size) + PAD_PIXELS
-    seen = np.isfinite(lo).all(axis=1) & ~wild
-    out[seen] = np.concatenate([np.clip(p0, 0, size), np.clip(p1, 0, size)], axis=1)[seen]
-    out[wild] = (0, 0, width, height)
-    return out
+    xyw = clip[cut][..., [0, 1, 3]]  # (M, 8, 3)
+    fr = front[cut]
+    ea, eb = _EDGES[:, 0], _EDGES[:, 1]
+    fa, fb = fr[:, ea], fr[:, eb]  # (M, 12)
+    crosses = (fa >= 0) != (fb >= 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(crosses, fa / (fa - fb), np.nan)
+        pts = np.concatenate([np.where((fr >= 0)[..., None], xyw, np.nan),
+                              xyw[:, ea] + t[..., None] * (xyw[:, eb] - xyw[:, ea])], axis=1)
+        # On the near plane w is the camera's near distance: never zero.
+        ndc = pts[..., :2] / pts[..., 2:]  # (M, 20, 2)
+    keep = ~np.isnan(pts[..., 2])
+    lo[cut] = np.where(keep[..., None], ndc, np.inf).min(axis=1)
+    hi[cut] = np.where(keep[..., None], ndc, -np.inf).max(axis=1)
+    return lo, hi
 
 
 def receiver_rects(light: LightShadow, bounds: np.ndarray, receivers: np.ndarray,
