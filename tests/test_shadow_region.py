@@ -247,7 +247,7 @@ CASES = {
 @pytest.mark.parametrize("case", list(CASES))
 def test_split_frame_matches_lookups_everywhere(renderer, case):
     scene = T.caster_on_ground()
-    params = {"width": 320, "height": 240, **CASES[case]}
+    params = {"width": 400, "height": 300, **CASES[case]}
     split, whole = _both(renderer, scene, params)
     region = split.plan["camera_pass"]["shadow_region"]
     assert region["share"] < 0.85 and region["instances"]["split"] >= 1, region
@@ -290,3 +290,10 @@ def test_split_frame_is_as_accurate_as_lookups_everywhere(renderer, models):
             renderer.plans.clear()
         assert split.missed_shadow_pct <= whole.missed_shadow_pct, json.dumps(light)
         assert split.iou >= whole.iou - 1e-9, (split.iou, whole.iou)
+
+
+def test_small_frames_draw_lookups_on_every_receiver():
+    # The region costs about a millisecond of Python; the lookups of a small frame less.
+    small = plan(T.caster_on_ground(), width=96, height=72)
+    assert small.shadow_region is None and small.map_lights
+    assert plan(T.caster_on_ground(), width=400, height=300).shadow_region is not None

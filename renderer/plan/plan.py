@@ -26,11 +26,10 @@ from .context import PlanContext
 from .culling import select_casters
 from .fit import Fit, Skip, Subject, choose_method
 from .shadow_region import (
+    MIN_REGION_PIXELS,
     ShadowRegion,
-    divide,
     lookup_reach,
-    receiver_rects,
-    union_rects,
+    plan_region,
     view_projection,
 )
 
@@ -193,7 +192,8 @@ class RenderPlan:
         (``shadows.fit``).
     shadow_region : ShadowRegion or None
         Where on screen any light's lookup may return less than 1
-        (:mod:`.shadow_region`); None without ``optimize``: lookups everywhere.
+        (:mod:`.shadow_region`); None without ``optimize`` or below
+        :data:`~.shadow_region.MIN_REGION_PIXELS` camera pixels: lookups on every receiver.
     """
 
     camera: Camera
@@ -260,7 +260,7 @@ def make_plan(
     else:
         planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
     region = None
-    if params.optimize:
+    if params.optimize and camera.width * camera.height >= MIN_REGION_PIXELS:
         planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     return RenderPlan(
@@ -286,26 +286,14 @@ def _shadow_region(ctx: PlanContext, planned: list[LightShadow], visible: np.nda
     reach = lookup_reach(shadows.pcf_kernel // 2 if shadows.filter == "pcf" else 0,
                          shadows.bias.normal_offset)
     camera = ctx.camera
-    view_proj = view_projection(camera, ctx.origin)
-    receivers = ctx.receivers()
-    keep_maps = "light_depth" in ctx.params.outputs
-    per_light, out = [], []
-    for lp in planned:
-        if lp.kind is not None:
-            rects = receiver_rects(lp, ctx.bounds, receivers, view_proj, camera.width,
-                                   camera.height, reach)
-            if not ((rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1])).any():
-                if not keep_maps:
-                    lp = LightShadow(index=lp.index, light=lp.light, position=lp.position,
-                                     reason="no_shadow_in_view")
-            else:
-                per_light.append(rects)
-        out.append(lp)
-    rects = np.zeros((len(ctx.receive), 4), np.int64)
-    if per_light:
-        rects[receivers] = union_rects(np.stack(per_light), axis=0)
-    return out, divide(rects, visible, ctx.receive, ctx.bounds, view_proj, camera.width,
-                       camera.height)
+    reached, region = plan_region(planned, ctx.bounds, visible, ctx.receive,
+                                  view_projection(camera, ctx.origin), camera.width,
+                                  camera.height, reach)
+    if "light_depth" in ctx.params.outputs:  # the light's picture is asked for: keep its pass
+        return planned, region
+    return [LightShadow(index=lp.index, light=lp.light, position=lp.position,
+                        reason="no_shadow_in_view") if lp.kind is not None and not ok else lp
+            for lp, ok in zip(planned, reached, strict=True)], region
 
 
 def _resolution_warning(lp: LightShadow, params: RenderParams) -> str:

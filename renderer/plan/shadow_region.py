@@ -35,6 +35,10 @@ MAX_PAIRS = 20_000
 #: Texels beyond the PCF radius that a lookup may read from a caster: the gathered footprint's
 #: half texel plus half a texel of rounding.
 LOOKUP_REACH_TEXELS = 2.0
+#: Frames of fewer pixels are drawn with lookups on every receiver: the plan's region costs
+#: about a millisecond of Python for a small scene, the lookups of 100,000 pixels about as much
+#: on a software rasterizer (bench/results/floor.md).
+MIN_REGION_PIXELS = 100_000
 #: Distinct shadow rectangles the camera pass draws receivers in at most; more are merged.
 MAX_BINS = 4
 #: Visible receivers the camera pass splits at most: past that, drawing each one twice (with
@@ -128,7 +132,7 @@ def outside(rect: Rect | None, width: int, height: int) -> list[Rect]:
 
 
 def divide(receiver_rects: np.ndarray, visible: np.ndarray, receive: np.ndarray,
-           boxes: np.ndarray, view_proj: np.ndarray, width: int, height: int) -> ShadowRegion:
+           on_screen: np.ndarray, width: int, height: int) -> ShadowRegion:
     """Sort the visible instances out by where shadows may fall on them.
 
     Receivers with the same rectangle share it. With more than :data:`MAX_BINS` distinct
@@ -145,8 +149,9 @@ def divide(receiver_rects: np.ndarray, visible: np.ndarray, receive: np.ndarray,
         Instances the camera pass draws.
     receive : ndarray, shape (N,), bool
         Every instance's receive flag.
-    boxes : ndarray, shape (N, 2, 3)
-        Every instance's box, as ``view_proj`` expects.
+    on_screen : ndarray, shape (N, 4), int
+        Per scene instance, the rectangle around its box on screen (:func:`screen_rects`); read
+        for the visible receivers only, and not at all past :data:`MAX_SPLIT_RECEIVERS` of them.
     """
     visible = np.asarray(visible, np.intp)
     classes = np.where(receive, UNREACHED, NO_SHADOW).astype(np.int8)
@@ -175,14 +180,13 @@ def divide(receiver_rects: np.ndarray, visible: np.ndarray, receive: np.ndarray,
         # know where they show.
         r = np.array(rects, np.int64)[which]  # (cand, 4): each receiver's rectangle
         placed = ~(r == frame).all(axis=1)
-        on_screen = r.copy()
-        if placed.any():
-            on_screen[placed] = screen_rects(boxes[cand[placed]], view_proj, width, height)
-        live = (on_screen[:, 2] > on_screen[:, 0]) & (on_screen[:, 3] > on_screen[:, 1])
-        meets = live & np.all(on_screen[:, :2] < r[:, 2:], axis=1) & np.all(
-            on_screen[:, 2:] > r[:, :2], axis=1)
-        within = np.all(on_screen[:, :2] >= r[:, :2], axis=1) & np.all(
-            on_screen[:, 2:] <= r[:, 2:], axis=1)
+        seen = r.copy()
+        seen[placed] = on_screen[cand[placed]]
+        live = (seen[:, 2] > seen[:, 0]) & (seen[:, 3] > seen[:, 1])
+        meets = live & np.all(seen[:, :2] < r[:, 2:], axis=1) & np.all(
+            seen[:, 2:] > r[:, :2], axis=1)
+        within = np.all(seen[:, :2] >= r[:, :2], axis=1) & np.all(seen[:, 2:] <= r[:, 2:],
+                                                                  axis=1)
         # Rectangles none of whose receivers shows inside go; a receiver whose own pixels all
         # lie outside its rectangle stays UNREACHED.
         used = sorted(set(which[meets].tolist()))
@@ -426,19 +430,52 @@ def _clipped_extent(clip: np.ndarray, front: np.ndarray, ahead: np.ndarray
     return lo, hi
 
 
-def receiver_rects(light: LightShadow, bounds: np.ndarray, receivers: np.ndarray,
-                   view_proj: np.ndarray, width: int, height: int, pad_texels: float
-                   ) -> np.ndarray:
-    """Per receiver, the window rectangle where this light's lookup may return less than 1.
+def pair_boxes(light: LightShadow, bounds: np.ndarray, receivers: np.ndarray,
+               pad_texels: float) -> tuple[np.ndarray, np.ndarray]:
+    """The non-empty swept boxes of a light's (caster, receiver) pairs (:func:`swept_bounds`).
+
+    Returns
+    -------
+    boxes : ndarray, shape (P, 2, 3)
+    pairs : ndarray, shape (P,), intp
+        Each box's receiver, as a position in ``receivers``; -1 for a box that stands for every
+        receiver (past :data:`MAX_PAIRS` pairs, one box around all the swept ones).
+    """
+    casters = sorted(set().union(*(m.casters for m in light.maps)))
+    if not casters or len(receivers) == 0:
+        return np.zeros((0, 2, 3)), np.zeros(0, np.intp)
+    sweeps = swept_bounds(bounds[casters], bounds[receivers], light, pad_texels)
+    c, r = sweeps.shape[:2]
+    flat = sweeps.reshape(-1, 2, 3)
+    live = np.all(flat[:, 0] <= flat[:, 1], axis=1)
+    if r == 1 and len(receivers) > 1:
+        # The receivers taken together: one box around the casters' swept boxes is all that is
+        # drawn with, so only it is projected.
+        if not live.any():
+            return np.zeros((0, 2, 3)), np.zeros(0, np.intp)
+        sub = flat[live]
+        return (np.stack([sub[:, 0].min(axis=0), sub[:, 1].max(axis=0)])[None],
+                np.full(1, -1, np.intp))
+    return flat[live], np.tile(np.arange(r, dtype=np.intp), c)[live]
+
+
+def plan_region(lights: list[LightShadow], bounds: np.ndarray, visible: np.ndarray,
+                receive: np.ndarray, view_proj: np.ndarray, width: int, height: int,
+                pad_texels: float) -> tuple[list[bool], ShadowRegion]:
+    """Where each light's lookups may shade on screen, and how the camera pass draws around it.
+
+    Every box is projected in one call: the swept boxes of every light's pairs and the visible
+    receivers' own boxes.
 
     Parameters
     ----------
-    light : LightShadow
-        A light with a pass.
+    lights : list of LightShadow
+        The plan's lights (those without a pass add nothing).
     bounds : ndarray, shape (N, 2, 3)
         Every instance's box, origin-relative.
-    receivers : ndarray, shape (R,)
-        Indices of the visible receivers.
+    visible : ndarray, shape (V,), intp
+        Instances the camera pass draws.
+    receive : ndarray, shape (N,), bool
     view_proj : ndarray, shape (4, 4)
         Origin-relative world to the camera's clip space (:func:`view_projection`).
     pad_texels : float
@@ -446,36 +483,65 @@ def receiver_rects(light: LightShadow, bounds: np.ndarray, receivers: np.ndarray
 
     Returns
     -------
-    ndarray, shape (R, 4), int64
-        ``(x0, y0, x1, y1)`` (exclusive ends), empty (``x1 <= x0``) where no shadow of this
-        light can fall on the receiver.
+    reached : list of bool
+        Per light, whether a shadow of it may show on a visible pixel (False for a light
+        without a pass).
+    region : ShadowRegion
     """
-    out = np.zeros((len(receivers), 4), np.int64)
-    casters = sorted(set().union(*(m.casters for m in light.maps)))
-    if not casters or len(receivers) == 0:
-        return out
-    pairs = swept_bounds(bounds[casters], bounds[receivers], light, pad_texels)
-    c, r = pairs.shape[:2]
-    flat = pairs.reshape(-1, 2, 3)
-    live = np.all(flat[:, 0] <= flat[:, 1], axis=1)
-    if r == 1 and c > 1:
-        # The receivers taken together (many pairs): one box around the casters' swept boxes
-        # is all that is drawn with, so only it is projected.
-        if not live.any():
-            return out
-        sub = flat[live]
-        flat = np.stack([sub[:, 0].min(axis=0), sub[:, 1].max(axis=0)])[None]
-        live = np.ones(1, bool)
-        c = 1
-    rects = np.zeros((len(flat), 4), np.int64)
-    if live.any():
-        sub = flat[live]
-        if not np.all(np.isfinite(sub)):
-            # Only non-finite boxes can leave a sweep unclipped: lookups everywhere.
-            rects[live] = (0, 0, width, height)
-        else:
-            rects[live] = screen_rects(sub, view_proj, width, height)
-    return np.broadcast_to(union_rects(rects.reshape(c, r, 4), axis=0), out.shape).copy()
+    visible = np.asarray(visible, np.intp)
+    receivers = visible[receive[visible]]
+    parts = [pair_boxes(lp, bounds, receivers, pad_texels) if lp.kind is not None
+             else (np.zeros((0, 2, 3)), np.zeros(0, np.intp)) for lp in lights]
+    own = receivers if len(receivers) <= MAX_SPLIT_RECEIVERS else receivers[:0]
+    boxes = np.concatenate([b for b, _ in parts] + [bounds[own]])
+    rects = screen_rects(boxes, view_proj, width, height)
+    n = len(bounds)
+    on_screen = np.zeros((n, 4), np.int64)
+    on_screen[own] = rects[len(rects) - len(own):]
+    live = (rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1])
+    per = np.zeros((len(receivers), 4), np.int64)  # the union over lights, per receiver
+    reached, start = [], 0
+    for box, which in parts:
+        r = rects[start:start + len(box)]
+        ok = live[start:start + len(box)]
+        start += len(box)
+        reached.append(bool(ok.any()))
+        if not ok.any():
+            continue
+        r, which = r[ok], which[ok]
+        every = which < 0
+        if every.any():  # a box that stands for every receiver
+            r = np.concatenate([r[~every], np.repeat(r[every], len(receivers), axis=0)])
+            which = np.concatenate([which[~every],
+                                    np.tile(np.arange(len(receivers)), int(every.sum()))])
+        grouped = np.zeros((len(r) + len(receivers), 4), np.int64)
+        grouped[:len(r)] = r
+        keys = np.concatenate([which, np.arange(len(receivers))])
+        order = np.argsort(keys, kind="stable")
+        per = union_rects(np.stack([per, _union_by(grouped[order], keys[order],
+                                                   len(receivers))]), axis=0)
+    rect_of = np.zeros((n, 4), np.int64)
+    rect_of[receivers] = per
+    return reached, divide(rect_of, visible, receive, on_screen, width, height)
+
+
+def _union_by(rects: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+    """Per key in ``range(count)``, the bounding rectangle of the non-empty rows of ``rects``
+    with that key (``keys`` sorted, every key present at least once).
+
+    Returns
+    -------
+    ndarray, shape (count, 4), int64
+    """
+    live = (rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1])
+    big = np.iinfo(np.int64).max
+    lo = np.where(live[:, None], rects[:, :2], big)
+    hi = np.where(live[:, None], rects[:, 2:], -big)
+    heads = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    out = np.concatenate([np.minimum.reduceat(lo, heads), np.maximum.reduceat(hi, heads)],
+                         axis=1)
+    out[~np.logical_or.reduceat(live, heads)] = 0
+    return out
 
 
 def union_rects(rects: np.ndarray, axis: int) -> np.ndarray:
