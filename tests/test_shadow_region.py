@@ -251,6 +251,7 @@ def test_split_frame_matches_lookups_everywhere(renderer, case):
     split, whole = _both(renderer, scene, params)
     region = split.plan["camera_pass"]["shadow_region"]
     assert region["share"] < 0.85 and region["instances"]["split"] >= 1, region
+    assert region["split"] and region["saved_share"] >= SR.MIN_SAVED_SHARE, region
     np.testing.assert_array_equal(split.depth, whole.depth)  # NaN where both are empty
     vs, vw = split.visibility, whole.visibility
     assert (vw < 0.5).sum() > 100  # there are shadows, and they are the same
@@ -290,6 +291,25 @@ def test_split_frame_is_as_accurate_as_lookups_everywhere(renderer, models):
             renderer.plans.clear()
         assert split.missed_shadow_pct <= whole.missed_shadow_pct, json.dumps(light)
         assert split.iou >= whole.iou - 1e-9, (split.iou, whole.iou)
+
+
+def test_too_little_saved_draws_lookups_on_every_receiver():
+    # Two receivers on a 640x480 frame: one shows 100x100 pixels, 90x100 of them in its shadow
+    # rectangle; the other's shadow covers its 50x50 pixels. 1,000 pixels would be saved.
+    visible = np.array([0, 1])
+    receive = np.array([True, True])
+    on_screen = np.array([[100, 100, 200, 200], [300, 300, 350, 350]])
+    rects = np.array([[110, 100, 200, 200], [300, 300, 350, 350]])
+    region = SR.divide(rects, visible, receive, on_screen, 640, 480)
+    assert region.classes.tolist() == [SR.LOOKUP + 1, SR.LOOKUP + 2]
+    assert region.saved_share == pytest.approx(1000 / (640 * 480))
+    assert not region.split and region.to_dict()["split"] is False
+    # A receiver no shadow reaches, 300x300 pixels, drawn without lookups: that is enough.
+    region = SR.divide(np.concatenate([rects, [[0, 0, 0, 0]]]), np.array([0, 1, 2]),
+                       np.array([True, True, True]),
+                       np.concatenate([on_screen, [[0, 0, 300, 300]]]), 640, 480)
+    assert region.classes[2] == SR.UNREACHED
+    assert region.saved_share == pytest.approx(91_000 / (640 * 480)) and region.split
 
 
 def test_small_frames_draw_lookups_on_every_receiver():

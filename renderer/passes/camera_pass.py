@@ -117,7 +117,7 @@ class CameraPass:
             blended = blended[np.argsort(-distance, kind="stable")]
         region = plan.shadow_region
         opaque = self._opaque(gpu, visible)
-        if not frame.maps or region is None:
+        if not frame.maps or region is None or not region.split:
             self._draw_groups(gpu, gpu.groups(opaque, receive), frame, units)
             self._draw_blended(gpu, gpu.runs(blended, receive), frame, units, vis_targets)
             return

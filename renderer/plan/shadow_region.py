@@ -39,6 +39,11 @@ LOOKUP_REACH_TEXELS = 2.0
 #: about a millisecond of Python for a small scene, the lookups of 100,000 pixels about as much
 #: on a software rasterizer (bench/results/floor.md).
 MIN_REGION_PIXELS = 100_000
+#: Below this share of the frame drawn without lookups instead of with them (estimated from the
+#: receivers' boxes on screen) the camera pass draws as if there were no region: drawing some
+#: receivers twice and switching programs costs about as much as the lookups of 10 % of a
+#: 640x480 frame on a software rasterizer (bench/results/floor.md).
+MIN_SAVED_SHARE = 0.1
 #: Distinct shadow rectangles the camera pass draws receivers in at most; more are merged.
 MAX_BINS = 4
 #: Visible receivers the camera pass splits at most: past that, drawing each one twice (with
@@ -89,6 +94,9 @@ class ShadowRegion:
         ``LOOKUP + 2 k (+ 1)`` for rectangle k); only the visible instances' mean anything.
     counts : tuple of int
         Visible instances drawn with lookups, drawn without, and drawn both ways.
+    saved_share : float
+        Share of the frame that the receivers' boxes cover outside their rectangles: an upper
+        bound on the pixels drawn without lookups that would have had them.
     """
 
     rect: Rect | None
@@ -97,6 +105,13 @@ class ShadowRegion:
     rects: tuple[Rect, ...]
     classes: np.ndarray
     counts: tuple[int, int, int] = (0, 0, 0)
+    saved_share: float = 0.0
+
+    @property
+    def split(self) -> bool:
+        """Whether the camera pass draws around the rectangles: enough is saved
+        (:data:`MIN_SAVED_SHARE`); else every visible instance is drawn with lookups."""
+        return self.saved_share >= MIN_SAVED_SHARE
 
     @property
     def share(self) -> float:
@@ -118,7 +133,8 @@ class ShadowRegion:
         return {"rect": None if self.rect is None else list(self.rect),
                 "share": round(self.share, 4),
                 "rects": [list(r) for r in self.rects],
-                "instances": {"lookup": lookup, "plain": plain, "split": split}}
+                "instances": {"lookup": lookup, "plain": plain, "split": split},
+                "saved_share": round(self.saved_share, 4), "split": self.split}
 
 
 def outside(rect: Rect | None, width: int, height: int) -> list[Rect]:
@@ -194,18 +210,33 @@ def divide(receiver_rects: np.ndarray, visible: np.ndarray, receive: np.ndarray,
         renumber[used] = np.arange(len(used))
         classes[cand[meets]] = LOOKUP + 2 * renumber[which[meets]] + ~within[meets]
         rects = [rects[k] for k in used]
+        # What is drawn without lookups: each receiver's box on screen outside its rectangle.
+        ox0, oy0 = np.maximum(seen[:, 0], r[:, 0]), np.maximum(seen[:, 1], r[:, 1])
+        ox1, oy1 = np.minimum(seen[:, 2], r[:, 2]), np.minimum(seen[:, 3], r[:, 3])
+        overlap = np.where(meets, np.maximum(ox1 - ox0, 0) * np.maximum(oy1 - oy0, 0), 0)
+        saved = int(np.where(live, (seen[:, 2] - seen[:, 0]) * (seen[:, 3] - seen[:, 1]),
+                             0).sum() - overlap.sum())
+    else:
+        saved = 0
+    # Visible receivers no shadow reaches on screen are drawn without lookups, whole.
+    unreached = visible[receive[visible] & ~shaded]
+    if len(unreached) and len(unreached) <= MAX_SPLIT_RECEIVERS:
+        o = on_screen[unreached]
+        saved += int(np.maximum((o[:, 2] - o[:, 0]) * (o[:, 3] - o[:, 1]), 0).sum())
     classes.flags.writeable = False
     c = classes[visible]
     looked = c >= LOOKUP
     counts = (int(looked.sum()), len(c) - int(looked.sum()),
               int((looked & ((c - LOOKUP) % 2 == 1)).sum()))
+    share = min(saved / float(width * height), 1.0)
     if not rects:
-        return ShadowRegion(None, width, height, (), classes, counts)
+        return ShadowRegion(None, width, height, (), classes, counts, share)
     ub = np.array(rects)
     x0, y0, x1, y1 = (int(v) for v in (ub[:, 0].min(), ub[:, 1].min(), ub[:, 2].max(),
                                       ub[:, 3].max()))
     return ShadowRegion((x0, y0, x1 - x0, y1 - y0), width, height,
-                        tuple((a, b, c - a, d - b) for a, b, c, d in rects), classes, counts)
+                        tuple((a, b, c - a, d - b) for a, b, c, d in rects), classes, counts,
+                        share)
 
 
 def _swept_directional(lo: np.ndarray, hi: np.ndarray, r_lo: np.ndarray, r_hi: np.ndarray,
