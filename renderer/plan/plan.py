@@ -26,6 +26,7 @@ from .context import PlanContext
 from .culling import select_casters
 from .fit import Fit, Skip, Subject, choose_method
 from .shadow_region import (
+    MAX_SPLIT_RECEIVERS,
     MIN_REGION_PIXELS,
     ShadowRegion,
     lookup_reach,
@@ -192,8 +193,10 @@ class RenderPlan:
         (``shadows.fit``).
     shadow_region : ShadowRegion or None
         Where on screen any light's lookup may return less than 1
-        (:mod:`.shadow_region`); None without ``optimize`` or below
-        :data:`~.shadow_region.MIN_REGION_PIXELS` camera pixels: lookups on every receiver.
+        (:mod:`.shadow_region`); None without ``optimize``, below
+        :data:`~.shadow_region.MIN_REGION_PIXELS` camera pixels or past
+        :data:`~.shadow_region.MAX_SPLIT_RECEIVERS` visible receivers: lookups on every
+        receiver.
     """
 
     camera: Camera
@@ -260,7 +263,9 @@ def make_plan(
     else:
         planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
     region = None
-    if params.optimize and camera.width * camera.height >= MIN_REGION_PIXELS:
+    # Past MAX_SPLIT_RECEIVERS visible receivers each one would be drawn with lookups anyway.
+    if (params.optimize and camera.width * camera.height >= MIN_REGION_PIXELS
+            and int(ctx.receive[visible].sum()) <= MAX_SPLIT_RECEIVERS):
         planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     return RenderPlan(
