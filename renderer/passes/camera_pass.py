@@ -186,9 +186,7 @@ class CameraPass:
                 frame.bare.ready = set()
             return frame
         cam = plan.camera
-        view = cam.view.copy()
-        view[:3, 3] += view[:3, :3] @ plan.origin  # world-relative-to-origin -> camera
-        view_proj = cam.projection @ view
+        view_proj = SR.view_projection(cam, plan.origin)  # the plan's region used the same
         frame = _FrameState(plan, maps, params, view_proj, cam.position - plan.origin, vis_targets,
                             generic=not params.optimize)
         self._frame = (plan, params, sig, frame)
