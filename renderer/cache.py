@@ -106,6 +106,10 @@ class BoundedCache(Generic[V]):
         self._trim()
         return True
 
+    def discard(self, key: str) -> None:
+        """Forget ``key`` (not evicted: ``on_evict`` is not called; the caller owns the value)."""
+        self._items.pop(key, None)
+
     def _trim(self) -> None:
         while len(self._items) > 1 and (
             len(self._items) > self.max_entries

@@ -40,6 +40,7 @@ from .limits import (
 )
 from .params import RenderParams
 from .plan import RenderPlan, make_plan
+from .plan.plan import SceneFitPlan, light_bytes
 from .scene import Instance, Scene, is_trimesh, load_scene, scene_from_trimesh
 
 if TYPE_CHECKING:
@@ -229,6 +230,9 @@ class Renderer:
         self.scenes: BoundedCache[Scene] = BoundedCache(cache_entries)
         #: Render plans by :func:`plan_key`.
         self.plans: BoundedCache[RenderPlan] = BoundedCache(cache_entries * 2)
+        #: Lights planned with ``shadows.fit: "scene"``, by :func:`~.plan.plan.scene_fit_key`:
+        #: the views of one scene that want the same map size plan each such light once.
+        self.scene_fits: BoundedCache[SceneFitPlan] = BoundedCache(cache_entries * 4)
         #: GPU uploads by the scene's key (freed when evicted).
         self.uploads: BoundedCache[GpuScene] = BoundedCache(
             cache_entries, cache_bytes, size=lambda g: g.nbytes, on_evict=lambda g: g.release())
@@ -484,7 +488,8 @@ class Renderer:
         try:
             t = time.perf_counter()
             plan, _, plan_hit = self.plans.get_or_make(
-                prep.plan_key, lambda: make_plan(scene, camera, lights, gpu.origin, params))
+                prep.plan_key, lambda: make_plan(scene, camera, lights, gpu.origin, params,
+                                                 self.scene_fits))
             # Every map is a 2D or 2D array texture (cube faces and cascades are layers).
             check_map_sizes((lp.map_size for lp in plan.map_lights), self.context.max_texture_size)
             timings["plan"] += time.perf_counter() - t
@@ -595,10 +600,7 @@ def plan_key(scene: Scene, camera: Camera, lights: list[Light], origin: np.ndarr
              camera.pose.tobytes(),
              repr((camera.yfov, camera.width, camera.height, camera.znear, camera.zfar)).encode(),
              params_json.encode()]
-    for lt in lights:
-        parts += [lt.position.tobytes(), lt.direction.tobytes(), np.asarray(lt.color).tobytes(),
-                  repr((lt.type, lt.intensity, lt.inner_cone, lt.outer_cone, lt.range,
-                        lt.cast_shadows)).encode()]
+    parts += [light_bytes(lt) for lt in lights]
     return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
 
 

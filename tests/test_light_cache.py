@@ -53,6 +53,40 @@ def test_scene_fit_does_not_depend_on_the_camera(demo):
     assert all(p.to_dict()["fit"] == "scene" for p in plans)
 
 
+def test_scene_fit_lights_are_planned_once_for_every_view(demo):
+    # Views of an orbit that want the same 'auto' map size: the directional light is planned by
+    # the first and taken from the memo by the others, and every plan equals the one made
+    # without it.
+    from shadowmap.renderer.cache import BoundedCache
+
+    memo: BoundedCache = BoundedCache(8)
+    for k in range(4):
+        p = RenderParams.model_validate(orbit(k))
+        cam = resolve_camera(p.camera, demo, p.width, p.height)
+        lights = resolve_lights(p.lights, demo)
+        lo, hi = demo.bounds
+        with_memo = make_plan(demo, cam, lights, (lo + hi) / 2, p, memo)
+        fresh = make_plan(demo, cam, lights, (lo + hi) / 2, p)
+        assert with_memo.to_dict() == fresh.to_dict()
+        a, b = with_memo.lights[0], fresh.lights[0]
+        assert np.array_equal(a.proj, b.proj) and a.casters == b.casters
+    assert (memo.misses, memo.hits) == (1, 3)
+    # A camera four times as far wants a smaller 'auto' map: planned again, not taken from the memo.
+    far = RenderParams.model_validate(orbit(0, radius=16.0))
+    cam = resolve_camera(far.camera, demo, far.width, far.height)
+    far_lights = resolve_lights(far.lights, demo)
+    lp = make_plan(demo, cam, far_lights, (lo + hi) / 2, far, memo).lights[0]
+    fresh_far = make_plan(demo, cam, far_lights, (lo + hi) / 2, far).lights[0]
+    assert lp.map_size == fresh_far.map_size < with_memo.lights[0].map_size
+    assert np.array_equal(lp.proj, fresh_far.proj)
+    # A view fit never reads the memo.
+    counts = (memo.misses, memo.hits)
+    view = RenderParams.model_validate(orbit(1, fit="view"))
+    cam = resolve_camera(view.camera, demo, view.width, view.height)
+    make_plan(demo, cam, resolve_lights(view.lights, demo), (lo + hi) / 2, view, memo)
+    assert (memo.misses, memo.hits) == counts
+
+
 def test_view_fit_follows_the_camera(demo):
     a, b = (plan_of(demo, orbit(k, fit="view")).lights[0] for k in (0, 2))
     assert not np.array_equal(a.proj, b.proj)

@@ -146,6 +146,9 @@ class PlanContext:
     max_size: int
     margin_texels: int
     texel_distance: float | None = None
+    #: Where given, every :meth:`map_size_for` call appends its (world, receivers, cube, size):
+    #: what a scene-fit light's plan read of the camera (see :func:`.plan.scene_fit_key`).
+    sizes_read: list[tuple[float, np.ndarray, bool, int]] | None = None
 
     @classmethod
     def build(cls, scene: Scene, camera: Camera, origin: np.ndarray,
@@ -224,7 +227,10 @@ class PlanContext:
         With 'auto', one texel is no larger than :data:`AUTO_TEXEL_PIXELS` camera pixels there.
         """
         pixel = self.pixel_per_distance * self.receiver_distance(receivers)
-        return self.map_size(world / max(pixel, 1e-300), cube)
+        size = self.map_size(world / max(pixel, 1e-300), cube)
+        if self.sizes_read is not None:
+            self.sizes_read.append((world, receivers, cube, size))
+        return size
 
     def margin(self, extent: float, size: int) -> float:
         """Padding of a map side ``extent`` wide, in the same unit: PCF taps and the normal offset

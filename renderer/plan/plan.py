@@ -35,6 +35,7 @@ from .shadow_region import (
 )
 
 if TYPE_CHECKING:  # the camera and lights import this package: types only, no import cycle
+    from ..cache import BoundedCache
     from ..camera import Camera
     from ..lights import Light
     from ..params import RenderParams
@@ -237,6 +238,7 @@ def make_plan(
     lights: list[Light],
     origin: np.ndarray,
     params: RenderParams,
+    scene_fits: BoundedCache[SceneFitPlan] | None = None,
 ) -> RenderPlan:
     """Decide the passes, frusta, map sizes and draw lists of one render.
 
@@ -252,6 +254,10 @@ def make_plan(
     origin : ndarray, shape (3,)
         World point the plan's positions are relative to (the upload's origin).
     params : RenderParams
+    scene_fits : BoundedCache of SceneFitPlan, optional
+        Lights already planned with ``shadows.fit: "scene"`` (:func:`scene_fit_key`): such a
+        light's plan reads nothing of the camera but its 'auto' map size, so the views of one
+        scene that want the same size plan it once. The plan is the same with or without it.
     """
     ctx = PlanContext.build(scene, camera, origin, params)
     n = len(scene.instances)
@@ -259,7 +265,8 @@ def make_plan(
     if params.shadows.fit == "scene":
         # Maps over every receiver, whatever the camera sees: one map per light, no cascades.
         shadow_ctx = ctx.scene_fit()
-        planned = [plan_light(shadow_ctx, i, light) for i, light in enumerate(lights)]
+        planned = [_plan_scene_fit(shadow_ctx, scene, i, light, scene_fits)
+                   for i, light in enumerate(lights)]
     else:
         planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
     region = None
@@ -280,6 +287,63 @@ def make_plan(
         fit=params.shadows.fit,
         shadow_region=region,
     )
+
+
+def light_bytes(light: Light) -> bytes:
+    """Everything of a resolved light that a plan reads, as bytes for a content key."""
+    return b"".join([light.position.tobytes(), light.direction.tobytes(),
+                     np.asarray(light.color).tobytes(),
+                     repr((light.type, light.intensity, light.inner_cone, light.outer_cone,
+                           light.range, light.cast_shadows)).encode()])
+
+
+def scene_fit_key(ctx: PlanContext, scene: Scene, index: int, light: Light) -> str:
+    """The content key of light ``index``'s plan in a scene-fit context (``""``: not kept).
+
+    What :func:`plan_light` reads there, but for the camera: the scene, the origin, the shadow
+    parameters and ``optimize``, the light. Of the camera it reads only the 'auto' map size
+    (:meth:`PlanContext.map_size_for`), which the memo checks itself (:class:`SceneFitPlan`). A
+    spot light's fit also reads the camera's position for its resolution warning, so spot
+    lights are planned every time.
+    """
+    if not scene.key or light.type == "spot":
+        return ""
+    from ..cache import content_key
+
+    head = repr((index, ctx.optimize, ctx.max_size, ctx.margin_texels)).encode()
+    parts = [scene.key.encode(), np.asarray(ctx.origin, np.float64).tobytes(),
+             ctx.params.shadows.model_dump_json().encode(), head, light_bytes(light)]
+    return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
+
+
+@dataclass(frozen=True)
+class SceneFitPlan:
+    """A scene-fit light's plan and the map sizes it asked for: (world, receivers, cube, size)
+    per :meth:`PlanContext.map_size_for` call. Another view reuses it when each call would
+    give it the same size."""
+
+    light: LightShadow
+    sizes: tuple[tuple[float, np.ndarray, bool, int], ...]
+
+    def fits(self, ctx: PlanContext) -> bool:
+        return all(ctx.map_size_for(w, r, c) == size for w, r, c, size in self.sizes)
+
+
+def _plan_scene_fit(ctx: PlanContext, scene: Scene, index: int, light: Light,
+                    memo: BoundedCache[SceneFitPlan] | None) -> LightShadow:
+    """:func:`plan_light` in a scene-fit context, through ``memo`` where one is given."""
+    key = scene_fit_key(ctx, scene, index, light) if memo is not None else ""
+    if memo is None or not key:
+        return plan_light(ctx, index, light)
+    kept = memo.get(key)
+    if kept is not None:
+        if kept.fits(ctx):
+            return kept.light
+        memo.discard(key)  # this view wants another map size: planned again, kept instead
+    sizes: list[tuple[float, np.ndarray, bool, int]] = []
+    planned = plan_light(dataclasses.replace(ctx, sizes_read=sizes), index, light)
+    memo.put(key, SceneFitPlan(planned, tuple(sizes)))
+    return planned
 
 
 def _shadow_region(ctx: PlanContext, planned: list[LightShadow], visible: np.ndarray
