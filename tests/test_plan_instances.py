@@ -119,9 +119,12 @@ def test_instance_planes_equal_one_instance_at_a_time(seed):
     assert [p is not None for p in expected] == ctx.planes.flat.tolist()
     assert ctx.planes.flat.any() and not ctx.planes.flat.all()
     for i, plane in enumerate(expected):
-        if plane is not None:  # bit for bit
-            np.testing.assert_array_equal(ctx.planes.normal[i], plane[0])
-            np.testing.assert_array_equal(ctx.planes.point[i], plane[1])
+        if plane is not None:
+            # To a few ulps, not bit for bit: a batched solve and a single one may take
+            # different LAPACK kernels (OpenBLAS picks them per processor).
+            np.testing.assert_allclose(ctx.planes.normal[i], plane[0], rtol=0, atol=1e-14)
+            scale = max(float(np.abs(plane[1]).max()), 1.0)
+            np.testing.assert_allclose(ctx.planes.point[i], plane[1], rtol=0, atol=1e-14 * scale)
 
 
 @pytest.mark.parametrize("seed", range(8))
