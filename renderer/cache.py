@@ -31,6 +31,12 @@ def content_key(data: bytes, resources: Mapping[str, bytes] | None = None) -> st
     return digest.hexdigest()
 
 
+def parts_key(parts: list[bytes]) -> str:
+    """:func:`content_key` of several byte strings, each framed by its length (so that no two
+    different lists of parts join to the same bytes)."""
+    return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
+
+
 class BoundedCache(Generic[V]):
     """Least-recently-used values by key, bounded by a count and, optionally, a size in bytes.
 

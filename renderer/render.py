@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .cache import BoundedCache, content_key
+from .cache import BoundedCache, content_key, parts_key
 from .camera import Camera, orthonormalize_pose, resolve_camera
 from .encodings import debug_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
@@ -601,7 +601,7 @@ def plan_key(scene: Scene, camera: Camera, lights: list[Light], origin: np.ndarr
              repr((camera.yfov, camera.width, camera.height, camera.znear, camera.zfar)).encode(),
              params_json.encode()]
     parts += [light_bytes(lt) for lt in lights]
-    return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
+    return parts_key(parts)
 
 
 def _ground_state(scene: Scene) -> tuple[tuple, tuple]:

@@ -14,7 +14,7 @@ import numpy as np
 from OpenGL import GL
 
 from .. import encodings
-from ..cache import BoundedCache, content_key
+from ..cache import BoundedCache, parts_key
 from ..gl.programs import ProgramCache
 from ..gl.resources import Framebuffer, GpuScene
 from ..params import ShadowParams
@@ -92,7 +92,7 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
         parts += [m.view.tobytes(), m.proj.tobytes(), *(v.tobytes() for v in m.face_views),
                   repr((m.near, m.far, m.map_size, list(m.faces))).encode(),
                   np.asarray(m.casters, np.int64).tobytes()]
-    return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
+    return parts_key(parts)
 
 
 class LightPass:

@@ -308,12 +308,12 @@ def scene_fit_key(ctx: PlanContext, scene: Scene, index: int, light: Light) -> s
     """
     if not scene.key or light.type == "spot":
         return ""
-    from ..cache import content_key
+    from ..cache import parts_key
 
-    head = repr((index, ctx.optimize, ctx.max_size, ctx.margin_texels)).encode()
-    parts = [scene.key.encode(), np.asarray(ctx.origin, np.float64).tobytes(),
-             ctx.params.shadows.model_dump_json().encode(), head, light_bytes(light)]
-    return content_key(b"".join(len(p).to_bytes(8, "little") + p for p in parts))
+    # The context's map-size bound and margin come from the shadow parameters.
+    return parts_key([scene.key.encode(), np.asarray(ctx.origin, np.float64).tobytes(),
+                      ctx.params.shadows.model_dump_json().encode(),
+                      repr((index, ctx.optimize)).encode(), light_bytes(light)])
 
 
 @dataclass(frozen=True)
