@@ -52,10 +52,18 @@ def cases(quick: bool):
             {"type": "directional", "position": [-1800, 6000, -1200], "target": [0, 0, 0]}]),
          "iou"),
     ]
-    for e in (10, 5, 2):
+    for e in (10, 5, 2, 0.3):
         out.append((f"grazing light {e} deg", grazing,
                     dict(camera={"eye": [0, 6, 12], "target": [0, 0, 0]}, lights=[_grazing_at(e)]),
                     "acne"))
+    # The same 0.3 degrees from spot and point lights 200 units away (a point light's map is
+    # then one frustum around the scene).
+    far = (-np.asarray(_grazing_at(0.3)["direction"]) * 200.0).tolist()
+    for kind, lt in (("spot", {"type": "spot", "position": far, "target": [0, 0, 0],
+                               "outer_cone_deg": 5}),
+                     ("point", {"type": "point", "position": far})):
+        out.append((f"grazing {kind} light 0.3 deg, 200 away", grazing,
+                    dict(camera={"eye": [0, 6, 12], "target": [0, 0, 0]}, lights=[lt]), "acne"))
     plain = T.pebbles_on_a_plain()
     for e in (30, 5):
         out.append((f"pebbles on a 400-unit plain, light {e} deg", plain,

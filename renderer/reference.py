@@ -31,7 +31,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import ReferenceUnavailable, RequestError
-from .lights import Light
+from .lights import FACING_COS, Light
 from .scene import Scene
 
 if TYPE_CHECKING:
@@ -46,8 +46,6 @@ EPS_PIXEL = 1e-2
 #: Most alpha-tested surfaces a ray may pass through before it is given up. Such a pixel is
 #: reported rather than guessed: as no geometry (primary ray) or as not valid (shadow ray).
 MAX_LAYERS = 8
-#: A surface "faces" a light when cos(normal, to-light) exceeds this.
-FACING_COS = 1e-3
 
 _OPAQUE, _MASK, _BLEND = 0, 1, 2
 
@@ -94,7 +92,11 @@ def _intersector_class() -> type[RayMeshIntersector]:
 
 
 def _texel_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Nearest-texel alpha with repeat wrapping.
+    """Alpha at ``uv`` as the renderer samples cut-outs: bilinear, level 0, repeat wrapping.
+
+    Both passes test alpha with ``textureLod(..., 0.0)`` through a ``GL_LINEAR`` sampler, so the
+    edge of a cut-out is where the bilinear interpolation of its texels crosses the cutoff; a
+    nearest-texel truth would put that edge up to half a texture texel elsewhere.
 
     Parameters
     ----------
@@ -109,9 +111,21 @@ def _texel_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     ndarray, shape (M,), float64 in [0, 1]
     """
     th, tw = texture.shape[:2]
-    col = np.floor(uv[:, 0] * tw).astype(np.int64) % tw
-    row = np.floor((1.0 - uv[:, 1]) * th).astype(np.int64) % th
-    return texture[row, col, 3] / 255.0
+    # Texel centres sit at half-integers (GL's convention): x = u * W - 0.5 between columns.
+    x = uv[:, 0] * tw - 0.5
+    y = (1.0 - uv[:, 1]) * th - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = x - x0
+    fy = y - y0
+    c0 = x0.astype(np.int64) % tw
+    c1 = (c0 + 1) % tw
+    r0 = y0.astype(np.int64) % th
+    r1 = (r0 + 1) % th
+    a = texture[..., 3]
+    top = a[r0, c0] * (1.0 - fx) + a[r0, c1] * fx
+    bottom = a[r1, c0] * (1.0 - fx) + a[r1, c1] * fx
+    return (top * (1.0 - fy) + bottom * fy) / 255.0
 
 
 class _Bvh:
@@ -243,7 +257,7 @@ class _Tracer:
         return t, np.stack([u, v], axis=1)
 
     def alpha(self, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
-        """Coverage alpha at hits: base colour × texture (nearest texel, repeat) × vertex colour.
+        """Coverage alpha at hits: base colour × texture (bilinear, repeat) × vertex colour.
 
         Parameters
         ----------

@@ -13,6 +13,9 @@ compile instead of silently using numbers that have drifted from Python's.
   :data:`LIGHT_TYPES`, the values of the camera pass's ``LIGHT_TYPES`` list.
 - ``MAX_LIGHTS``: lights one camera pass shades (:data:`.limits.MAX_LIGHTS`).
 - ``MAX_CASCADES``: cascades of one directional light (:data:`.limits.MAX_CASCADES`).
+- ``PLANE_SLOPE_MAX``: the steepest receiver plane (tan of its angle to the light) the shadow
+  lookups follow: that of a surface at :data:`.lights.FACING_COS` to the light, the most grazing
+  one that still counts as lit.
 - ``FOR_EACH_SLOT(X)``: expands to ``X(0) X(1) ... X(MAX_LIGHTS - 1)``; the shadow chunks build
   their per-map dispatch from it, so that every sampler array is indexed by a constant (dynamic
   indexing of sampler arrays is where drivers differ).
@@ -20,11 +23,13 @@ compile instead of silently using numbers that have drifted from Python's.
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
 
 from . import encodings
+from .lights import FACING_COS
 from .limits import MAX_CASCADES, MAX_LIGHTS
 
 #: Light type -> the id the camera pass's ``LIGHT_TYPES`` define lists per light.
@@ -63,5 +68,6 @@ def shader_constants() -> tuple[tuple[str, str], ...]:
         out.append((f"LIGHT_{name.upper()}", str(ident)))
     out.append(("MAX_LIGHTS", str(MAX_LIGHTS)))
     out.append(("MAX_CASCADES", str(MAX_CASCADES)))
+    out.append(("PLANE_SLOPE_MAX", _float_literal(math.sqrt(1.0 - FACING_COS**2) / FACING_COS)))
     out.append(("FOR_EACH_SLOT(X)", " ".join(f"X({k})" for k in range(MAX_LIGHTS))))
     return tuple(out)

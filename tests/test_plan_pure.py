@@ -16,7 +16,7 @@ from shadowmap.renderer.lights import resolve_lights
 from shadowmap.renderer.plan import LightShadow, RenderPlan, geometry, make_plan
 from shadowmap.renderer.plan.context import PlanContext
 from shadowmap.renderer.plan.culling import shadowless_planes, view_planes
-from shadowmap.renderer.plan.fit import CUBE, DIRECTIONAL, SPOT, choose_method
+from shadowmap.renderer.plan.fit import CUBE, DIRECTIONAL, SPOT, Subject, choose_method
 from shadowmap.renderer.plan.geometry import (
     CUBE_FACES,
     box_corners,
@@ -41,6 +41,8 @@ SPOT_40 = {"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "o
 WIDE_SPOT = {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0],
              "outer_cone_deg": 89.5}
 POINT = {"type": "point", "position": [0.0, 2.0, 0.0]}
+#: A point light so far that everything seen lies in a narrow cone from it.
+FAR_POINT = {"type": "point", "position": [-60.0, 80.0, 40.0]}
 AWAY = {"type": "spot", "position": [0, 3, 0], "direction": [0, 1, 0], "outer_cone_deg": 30}
 ROOM_CAMERA = {"eye": [3.0, 3.5, 3.0], "target": [-2, -1, -2], "yfov_deg": 45}
 
@@ -216,11 +218,18 @@ def test_point_light_in_a_room_leaves_out_faces_without_receivers():
     (SPOT_40, "perspective", SPOT),
     (WIDE_SPOT, "cube", CUBE),
     (POINT, "cube", CUBE),
+    (FAR_POINT, "perspective", SPOT),
 ])
 def test_each_light_kind_gets_its_fit(light_params, kind, method):
     args = inputs(T.caster_on_ground(), lights=[light_params])
     ctx = PlanContext.build(args[0], args[1], args[3], args[4])
-    assert choose_method(ctx, args[2][0]) is method
+    light = args[2][0]
+    chosen, subject = choose_method(ctx, Subject(light, light.position - ctx.origin,
+                                                 ctx.receivers()))
+    assert chosen is method
+    # The light is planned with its own type; a point light fitted by a frustum only borrows a
+    # spot's cone, and around the seen receivers.
+    assert (subject.light is light) == (light.type == "spot" or kind != "perspective")
     lp = make_plan(*args).lights[0]
     assert lp.kind == kind and lp.reason is None
     assert set(lp.to_dict()) == {"type", "shadow_map", "map_size", "casters", "skipped", "near",

@@ -55,9 +55,14 @@ DEMO_CAMERA = {"eye": [3.5, 3.0, 5.0], "target": [0.0, 0.4, 0.0]}
         ({"type": "directional", "direction": [-0.6, -1.0, 0.25]}, "ortho"),
         ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 40},
          "perspective"),
+        # A wide cone: cube faces where the seen receivers spread wider than a frustum covers,
+        # one frustum around them where they do not (fit.choose_method).
+        ({"type": "spot", "position": [-1.5, 2.5, 2.0], "direction": [0.3, -1, -0.2],
+          "outer_cone_deg": 80}, "cube"),
         ({"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 80},
-         "cube"),
+         "perspective"),
         ({"type": "point", "position": [-1.5, 2.5, 2.0]}, "cube"),
+        ({"type": "point", "position": [-5.0, 8.0, 3.0]}, "perspective"),
     ],
 )
 def test_each_light_type_matches_reference(renderer, demo, light, kind):

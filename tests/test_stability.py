@@ -63,6 +63,32 @@ def test_grazing_light_has_no_acne(renderer, elevation):
     assert m.pixels > 50_000
 
 
+@pytest.mark.parametrize("elevation", [0.3, 0.15])
+@pytest.mark.parametrize("kind", ["directional", "spot", "point"])
+def test_ground_lit_at_a_fraction_of_a_degree(renderer, kind, elevation):
+    # A receiver plane at tan 190 and 380 to the light: past where a clamp on it (once at 100)
+    # tilted the plane every texel is compared against and striped the ground with shadow,
+    # still inside what faces the light (FACING_COS). The spot and point lights stand 200 units
+    # away: the point light's map is one frustum around the scene, not a cube face that would
+    # give the scene a few dozen of its texels (IoU 0.0 to 0.4 with one).
+    e = math.radians(elevation)
+    direction = np.array([0.3 * math.cos(e), -math.sin(e), math.cos(e)])
+    direction /= np.linalg.norm(direction)
+    far = (-direction * 200.0).tolist()
+    light = {
+        "directional": {"type": "directional", "direction": direction.tolist()},
+        "spot": {"type": "spot", "position": far, "target": [0, 0, 0], "outer_cone_deg": 5},
+        "point": {"type": "point", "position": far},
+    }[kind]
+    m, result = iou(renderer, T.grazing_plane(), camera={"eye": [0, 6, 12], "target": [0, 0, 0]},
+                    lights=[light])
+    assert result.plan["lights"][0]["shadow_map"] == ("ortho" if kind == "directional"
+                                                      else "perspective")
+    assert m.pixels > 50_000
+    assert m.false_shadow_pct <= 0.02, m
+    assert m.iou >= 0.99, m
+
+
 @pytest.mark.parametrize("elevation", [30.0, 5.0])
 def test_small_casters_on_a_vast_ground_plane(renderer, elevation):
     # The plane reaches the horizon; it casts nothing onto what stands on it, so the map is fitted

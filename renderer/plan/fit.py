@@ -14,6 +14,7 @@ an existing one) and a fit step; :func:`choose_method` picks it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -378,11 +379,51 @@ SPOT: ShadowMethod[SpotReach] = ShadowMethod(reach_spot, fit_spot)
 CUBE: ShadowMethod[CubeReach] = ShadowMethod(reach_cube, fit_cube)
 
 
-def choose_method(ctx: PlanContext, light: Light) -> ShadowMethod:
+def seen_cone(ctx: PlanContext, position: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """A cone from ``position`` holding every receiver point the camera sees: its unit axis (3,)
+    and half-angle in radians, or None where a seen point coincides with the light.
+
+    The axis is the mean of the directions to those points, which is within the smallest such
+    cone's half-angle of its axis: the half-angle found is at most twice the smallest.
+    """
+    pts = np.concatenate([ctx.corners[ctx.seen.whole].reshape(-1, 3), ctx.seen.points])
+    if len(pts) == 0:
+        return None
+    delta = pts - position
+    dist = np.linalg.norm(delta, axis=1)
+    if not np.all(dist > 0):
+        return None
+    u = delta / dist[:, None]
+    mean = u.mean(axis=0)
+    length = float(np.linalg.norm(mean))
+    if not length > 0:
+        return None
+    axis = mean / length
+    cos_min = float(np.clip((u @ axis).min(), -1.0, 1.0))
+    return axis, math.acos(cos_min)
+
+
+def choose_method(ctx: PlanContext, s: Subject) -> tuple[ShadowMethod, Subject]:
     """How a light is shadowed: directional lights with a box, spots up to
-    :data:`MAX_SPOT_HALF_ANGLE` with a frustum, point lights and wider spots with a cube."""
+    :data:`MAX_SPOT_HALF_ANGLE` with a frustum, point lights and wider spots with a cube --
+    unless everything the camera sees of the receivers lies inside a cone from the light that
+    narrow (a far point light): then one frustum around that cone, in place of up to six cube
+    faces that would give the scene a few of their texels.
+
+    Returns the method and the subject it fits: for a frustum around the seen receivers, the
+    light as a spot along that cone (which only bounds the map; shading uses the light itself).
+    """
+    light = s.light
     if light.type == "directional":
-        return DIRECTIONAL
+        return DIRECTIONAL, s
     if light.type == "spot" and light.outer_cone <= MAX_SPOT_HALF_ANGLE:
-        return SPOT
-    return CUBE
+        return SPOT, s
+    cone = seen_cone(ctx, s.position)
+    if cone is not None and cone[1] <= MAX_SPOT_HALF_ANGLE:
+        axis, half_angle = cone
+        if light.type == "spot":
+            half_angle = min(half_angle, light.outer_cone)
+        narrowed = dataclasses.replace(light, type="spot", direction=axis,
+                                       outer_cone=half_angle)
+        return SPOT, dataclasses.replace(s, light=narrowed)
+    return CUBE, s

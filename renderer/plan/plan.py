@@ -304,7 +304,7 @@ def scene_fit_key(ctx: PlanContext, scene: Scene, index: int, light: Light) -> s
     parameters and ``optimize``, the light. Of the camera it reads only the 'auto' map size
     (:meth:`PlanContext.map_size_for`), which the memo checks itself (:class:`SceneFitPlan`). A
     spot light's fit also reads the camera's position for its resolution warning, so spot
-    lights are planned every time.
+    lights are planned every time, and so are point lights fitted with a frustum.
     """
     if not scene.key or light.type == "spot":
         return ""
@@ -342,7 +342,10 @@ def _plan_scene_fit(ctx: PlanContext, scene: Scene, index: int, light: Light,
         memo.discard(key)  # this view wants another map size: planned again, kept instead
     sizes: list[tuple[float, np.ndarray, bool, int]] = []
     planned = plan_light(dataclasses.replace(ctx, sizes_read=sizes), index, light)
-    memo.put(key, SceneFitPlan(planned, tuple(sizes)))
+    # A frustum (a point light far from the scene: fit.choose_method) reads the camera for its
+    # resolution warning, as a spot's does: planned every time.
+    if planned.kind != "perspective":
+        memo.put(key, SceneFitPlan(planned, tuple(sizes)))
     return planned
 
 
@@ -412,7 +415,7 @@ def _shadow(ctx: PlanContext, s: Subject) -> tuple[Fit, list[int], dict[str, int
         return Skip("no_caster")
     if len(s.receivers) == 0:
         return Skip("no_visible_receiver")
-    method = choose_method(ctx, s.light)
+    method, s = choose_method(ctx, s)
     reach = method.reach(ctx, s)
     if isinstance(reach, Skip):
         return reach

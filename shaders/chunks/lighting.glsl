@@ -56,10 +56,10 @@ float light_attenuation(int i, vec3 p, out vec3 l) {
 #if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0 || NUM_MAPS_CSM > 0
 uniform vec4 u_bias;         // constant, slope, slope max, normal offset (texels)
 uniform float u_bias_steps;  // quantisation bias in steps of the encoding
-// Steepest receiver plane (tan of its angle to the light) the per-texel comparison follows; the
-// bias's own slope term stops at slope_max. A plane compared at each texel's centre is exact at
-// any angle, so this only guards against a normal edge-on to the light (tan 100: 89.4 degrees).
-const float PLANE_SLOPE_MAX = 100.0;
+// PLANE_SLOPE_MAX (injected): the steepest receiver plane (tan of its angle to the light) the
+// per-texel comparison follows, that of the most grazing surface that still counts as facing the
+// light; the bias's own slope term stops at slope_max. A plane compared at each texel's centre
+// is exact at any angle: a lower clamp put false shadow on every surface steeper than it.
 
 // Depth bias in world units at a receiver whose texel has world size `texel`, for a surface at
 // angle acos(cos_l) to the light: a texel-sized constant plus the depth change across a texel.
