@@ -63,7 +63,7 @@ def cases(quick: bool):
                                "outer_cone_deg": 5}),
                      ("point", {"type": "point", "position": far})):
         out.append((f"grazing {kind} light 0.3 deg, 200 away", grazing,
-                    dict(camera={"eye": [0, 6, 12], "target": [0, 0, 0]}, lights=[lt]), "acne"))
+                    dict(camera={"eye": [0, 6, 12], "target": [0, 0, 0]}, lights=[lt]), "iou"))
     plain = T.pebbles_on_a_plain()
     for e in (30, 5):
         out.append((f"pebbles on a 400-unit plain, light {e} deg", plain,
