@@ -19,12 +19,6 @@ from .scene import Scene
 
 DEFAULT_DIRECTION = np.array([-0.5, -1.0, 0.2])
 
-#: A surface faces a light when the cosine between its normal and the direction to the light
-#: exceeds this (89.94 degrees): the ray-traced reference compares shadows there, and the camera
-#: pass's receiver plane follows every such surface (``PLANE_SLOPE_MAX``, its tangent, in
-#: :mod:`.shader_constants`).
-FACING_COS = 1e-3
-
 
 @dataclass(frozen=True)
 class Light:

@@ -477,7 +477,8 @@ class ShadowParams(_Model):
         default="auto",
         description="texels per side (a power of two, at most the service's max_map_size), or "
         "'auto': the smallest power of two whose texel covers at most half a camera pixel on "
-        "the visible receivers, up to max_map_size",
+        "the visible receivers, and at most one pixel along its stretch on their flat faces "
+        "lit at a grazing angle (one power of two more at the most), up to max_map_size",
         examples=["auto", 1024],
     )
     max_map_size: Integer = Field(

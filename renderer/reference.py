@@ -31,7 +31,8 @@ import numpy as np
 
 from .camera import Camera
 from .errors import ReferenceUnavailable, RequestError
-from .lights import FACING_COS, Light
+from .lights import Light
+from .plan.geometry import FACING_COS
 from .scene import Scene
 
 if TYPE_CHECKING:

@@ -14,8 +14,8 @@ compile instead of silently using numbers that have drifted from Python's.
 - ``MAX_LIGHTS``: lights one camera pass shades (:data:`.limits.MAX_LIGHTS`).
 - ``MAX_CASCADES``: cascades of one directional light (:data:`.limits.MAX_CASCADES`).
 - ``PLANE_SLOPE_MAX``: the steepest receiver plane (tan of its angle to the light) the shadow
-  lookups follow: that of a surface at :data:`.lights.FACING_COS` to the light, the most grazing
-  one that still counts as lit.
+  lookups follow: that of a surface at :data:`.plan.geometry.FACING_COS` to the light, the most
+  grazing one that still counts as lit.
 - ``FOR_EACH_SLOT(X)``: expands to ``X(0) X(1) ... X(MAX_LIGHTS - 1)``; the shadow chunks build
   their per-map dispatch from it, so that every sampler array is indexed by a constant (dynamic
   indexing of sampler arrays is where drivers differ).
@@ -29,8 +29,8 @@ from functools import lru_cache
 import numpy as np
 
 from . import encodings
-from .lights import FACING_COS
 from .limits import MAX_CASCADES, MAX_LIGHTS
+from .plan.geometry import FACING_COS
 
 #: Light type -> the id the camera pass's ``LIGHT_TYPES`` define lists per light.
 LIGHT_TYPES: dict[str, int] = {"directional": 0, "spot": 1, "point": 2}

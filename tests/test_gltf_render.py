@@ -133,16 +133,11 @@ def _three_lights(scene) -> dict[str, list[dict]]:
 #: Known gaps, measured at 640x480 with the default settings: the test fails the day they are
 #: fixed, so the mark must then go.
 KNOWN_GAPS = {
-    # A 3-pixel strip along the top of the pedestal's front face, at about 10 degrees to the
-    # light, under the lip of its rim: the shadow is there, but on a face at angle θ to the
-    # light its edge moves 1 / sin θ texel widths on the face per texel, and the automatic 1024 map
-    # (half a camera pixel per texel, for a surface facing the light) leaves a 1-pixel edge
-    # error, a third of the strip (map_size 2048: 0.980). The point light passes (0.976).
-    "Fox.glb": "directional IoU 0.957: a shadow strip on a face at 10 degrees to the light",
     # The labels are decals a few millimetres above the pedestal and the cut-out panels cast
     # slivers one or two pixels wide: the sampling of the 2048 maps of the spot and point
-    # lights moves their edges by a pixel (4096: 0.967 / 0.961).
-    "AlphaBlendModeTest.glb": "spot IoU 0.960, point 0.930: shadow slivers 1-2 pixels wide",
+    # lights moves their edges by a pixel (spot 0.967 with its automatic 4096 map; point 0.961
+    # with a 4096 cube).
+    "AlphaBlendModeTest.glb": "spot IoU 0.967, point 0.930: shadow slivers 1-2 pixels wide",
 }
 
 

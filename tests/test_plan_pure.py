@@ -14,7 +14,7 @@ from shadowmap.renderer import testing as T
 from shadowmap.renderer.camera import resolve_camera
 from shadowmap.renderer.lights import resolve_lights
 from shadowmap.renderer.plan import LightShadow, RenderPlan, geometry, make_plan
-from shadowmap.renderer.plan.context import PlanContext
+from shadowmap.renderer.plan.context import PlanContext, Toward
 from shadowmap.renderer.plan.culling import shadowless_planes, view_planes
 from shadowmap.renderer.plan.fit import CUBE, DIRECTIONAL, SPOT, Subject, choose_method
 from shadowmap.renderer.plan.geometry import (
@@ -241,6 +241,66 @@ def test_each_light_kind_gets_its_fit(light_params, kind, method):
 def test_fixed_map_size_is_used_as_given():
     for lt in (SUN, SPOT_40, POINT):
         assert light(T.caster_on_ground(), lt, shadows={"map_size": 1024}).map_size == 1024
+
+
+def test_flat_patches_of_a_primitive():
+    import trimesh
+
+    from shadowmap.renderer.plan.instances import primitive_patches
+
+    def patches(mesh):
+        return primitive_patches(scene_from_meshes([mesh], ["m"]).primitives[0])
+
+    box = patches(trimesh.creation.box((1.0, 2.0, 3.0)))
+    assert len(box) == 6
+    np.testing.assert_allclose(np.sort(np.abs(box).max(axis=1)), np.ones(6), atol=1e-12)
+    assert len(patches(trimesh.creation.icosphere(3))) == 0  # curved: 1,280 orientations
+    quad = patches(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]],
+                                   [[0, 2, 1], [0, 3, 2]], process=False))
+    np.testing.assert_allclose(np.abs(quad), [[0.0, 1.0, 0.0]], atol=1e-12)
+
+
+def test_texel_stretch_on_a_flat_face():
+    up = np.array([[0.0, 1.0, 0.0]])
+    down = np.array([[0.0, -1.0, 0.0]])
+    # Square to the light and to the view: a texel looks as wide as it is long.
+    assert geometry.texel_stretch(up, up, down) == pytest.approx([1.0])
+    # Lit at 10 degrees from its plane and seen straight on: 1 / sin 10 degrees, either side.
+    th = math.radians(10)
+    low = np.array([[math.cos(th), math.sin(th), 0.0]])
+    assert geometry.texel_stretch(up, low, down) == pytest.approx([1 / math.sin(th)])
+    assert geometry.texel_stretch(-up, low, down) == pytest.approx([1 / math.sin(th)])
+    # Seen along the stretch, edge-on: it is foreshortened away.
+    assert geometry.texel_stretch(up, low, np.array([[1.0, 0.0, 0.0]])) == pytest.approx([1.0])
+    # The side the camera sees is not lit, or lit at less than FACING_COS: no stretch counts.
+    assert geometry.texel_stretch(up, -low, down) == [0.0]
+    edge = np.array([[1.0, geometry.FACING_COS / 2, 0.0]])
+    assert geometry.texel_stretch(up, edge / np.linalg.norm(edge), down) == [0.0]
+
+
+@pytest.mark.parametrize("elevation, ratio", [(80.0, 1), (30.0, 1), (10.0, 2), (2.0, 2)])
+def test_auto_map_size_grows_one_power_of_two_for_grazing_flat_faces(elevation, ratio):
+    # The ground is a flat patch; lit at 10 degrees a texel spans 5.8 times its width on it, one
+    # camera pixel at the most then wants a texel a fifth as long, held to half the size.
+    scene, camera, lights, origin, params = inputs(T.caster_on_ground(), lights=[SUN])
+    ctx = PlanContext.build(scene, camera, origin, params)
+    ground = [i for i, inst in enumerate(scene.instances) if inst.name == "ground"]
+    receivers = np.array(ground)
+    e = math.radians(elevation)
+    toward = Toward(np.array([math.cos(e), math.sin(e), 0.0]), positional=False)
+    # A side that wants 600 texels at the nearest receiver's distance: 1024 unstretched.
+    world = 600 * ctx.pixel_per_distance * ctx.receiver_distance(receivers)
+    plain = ctx.map_size_for(world, receivers)
+    assert plain == 1024
+    assert ctx.map_size_for(world, receivers, toward=toward) == plain * ratio
+    # A curved receiver has no flat patch: its size stays as it was.
+    import trimesh
+
+    ball = scene_from_meshes([trimesh.creation.icosphere(3)], ["ball"])
+    b_scene, b_camera, _, b_origin, b_params = inputs(ball, lights=[SUN])
+    b_ctx = PlanContext.build(b_scene, b_camera, b_origin, b_params)
+    world = 600 * b_ctx.pixel_per_distance * b_ctx.receiver_distance(np.array([0]))
+    assert b_ctx.map_size_for(world, np.array([0]), toward=toward) == 1024
 
 
 def test_directional_fit_is_along_the_light_with_its_texel_size():

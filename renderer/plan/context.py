@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .culling import view_planes
-from .geometry import aabbs_against_frustum, clip_boxes
-from .instances import Planes, scene_arrays
+from .geometry import aabbs_against_frustum, clip_boxes, texel_stretch
+from .instances import Planes, SceneArrays, scene_arrays
 
 if TYPE_CHECKING:  # the camera imports this package: types only, no import cycle
     from ..camera import Camera
@@ -29,6 +29,30 @@ MIN_AUTO_MAP = 256
 # With map_size "auto", one texel covers at most this many camera pixels on the visible receivers:
 # half a pixel, so that an edge is sampled at least twice per pixel.
 AUTO_TEXEL_PIXELS = 0.5
+# A flat face lit at a grazing angle stretches each texel across it (geometry.texel_stretch):
+# 'auto' then wants its texel no longer than one camera pixel along the stretch (the half pixel
+# above is the target where nothing stretches), up to this many times finer than for the nearest
+# receiver: one power of two, as the next would cost four times the light pass again.
+MAX_TEXEL_STRETCH = 2.0
+# Receivers whose faces are weighed for the stretch: the nearest ones that could need it.
+MAX_STRETCH_RECEIVERS = 256
+
+
+@dataclass(frozen=True)
+class Toward:
+    """Where a light is, seen from the receivers: ``vector`` is the unit direction toward a
+    directional light (``positional`` False) or a positional light's origin-relative position."""
+
+    vector: np.ndarray
+    positional: bool
+
+    def at(self, points: np.ndarray) -> np.ndarray:
+        """Unit directions toward the light from ``points`` (M, 3); zero at the light itself."""
+        if not self.positional:
+            return np.broadcast_to(self.vector, points.shape)
+        d = self.vector - points
+        length = np.sqrt((d * d).sum(axis=1))[:, None]
+        return np.divide(d, length, out=np.zeros_like(d), where=length > 0)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -146,9 +170,14 @@ class PlanContext:
     max_size: int
     margin_texels: int
     texel_distance: float | None = None
-    #: Where given, every :meth:`map_size_for` call appends its (world, receivers, cube, size):
-    #: what a scene-fit light's plan read of the camera (see :func:`.plan.scene_fit_key`).
-    sizes_read: list[tuple[float, np.ndarray, bool, int]] | None = None
+    #: Where given, every :meth:`map_size_for` call appends its (world, receivers, cube, toward,
+    #: size): what a scene-fit light's plan read of the camera (see :func:`.plan.scene_fit_key`).
+    sizes_read: list[tuple[float, np.ndarray, bool, Toward | None, int]] | None = None
+    #: The scene's instance arrays, for the faces of the receivers (:meth:`receiver_distance`).
+    arrays: SceneArrays | None = None
+    #: Weigh the receivers' faces as any view could see them, not as this camera does (a map
+    #: shared by every view: ``shadows.fit: "scene"``).
+    any_view: bool = False
 
     @classmethod
     def build(cls, scene: Scene, camera: Camera, origin: np.ndarray,
@@ -180,6 +209,7 @@ class PlanContext:
             pixel_per_distance=2 * math.tan(camera.yfov / 2) / camera.height * AUTO_TEXEL_PIXELS,
             max_size=shadow.max_map_size,
             margin_texels=(shadow.pcf_kernel // 2 if shadow.filter == "pcf" else 0) + 2,
+            arrays=arrays,
         )
 
     def scene_fit(self) -> PlanContext:
@@ -195,6 +225,7 @@ class PlanContext:
             self,
             in_view=_frozen(np.ones(len(self.receive), bool)),
             seen=Seen(whole=_frozen(receivers), points=_frozen(np.zeros((0, 3)))),
+            any_view=True,
         )
 
     @property
@@ -221,15 +252,18 @@ class PlanContext:
             return _pow2_at_least(needed, MIN_AUTO_MAP, top)
         return int(size)
 
-    def map_size_for(self, world: float, receivers: np.ndarray, cube: bool = False) -> int:
+    def map_size_for(self, world: float, receivers: np.ndarray, cube: bool = False,
+                     toward: Toward | None = None) -> int:
         """Map size for a map side spanning ``world`` units at the receivers' distance.
 
-        With 'auto', one texel is no larger than :data:`AUTO_TEXEL_PIXELS` camera pixels there.
+        With 'auto', one texel is no larger than :data:`AUTO_TEXEL_PIXELS` camera pixels there,
+        and (given where the light is) no longer than one pixel across the grazing-lit flat
+        faces of the receivers (:meth:`receiver_distance`).
         """
-        pixel = self.pixel_per_distance * self.receiver_distance(receivers)
+        pixel = self.pixel_per_distance * self.receiver_distance(receivers, toward)
         size = self.map_size(world / max(pixel, 1e-300), cube)
         if self.sizes_read is not None:
-            self.sizes_read.append((world, receivers, cube, size))
+            self.sizes_read.append((world, receivers, cube, toward, size))
         return size
 
     def margin(self, extent: float, size: int) -> float:
@@ -237,9 +271,47 @@ class PlanContext:
         may read a few texels beyond the receivers."""
         return extent / size * self.margin_texels
 
-    def receiver_distance(self, receivers: np.ndarray) -> float:
-        """A representative camera distance of the receivers: the nearest box centre."""
+    def receiver_distance(self, receivers: np.ndarray, toward: Toward | None = None) -> float:
+        """A representative camera distance of the receivers: the nearest box centre, or nearer
+        where a light ``toward`` stretches its texels over their flat faces.
+
+        A receiver at distance d whose flat patch (:func:`.instances.primitive_patches`) shows
+        a texel k times longer than wide (:func:`.geometry.texel_stretch`) wants the texel size
+        of distance d / (k x AUTO_TEXEL_PIXELS), capped at :data:`MAX_TEXEL_STRETCH` times
+        finer than d; only the :data:`MAX_STRETCH_RECEIVERS` nearest receivers that could ask
+        for more than the nearest one are weighed (vectorised, a few per primitive). With
+        :attr:`any_view`, the nearest distance over the largest k of the (nearest
+        :data:`MAX_STRETCH_RECEIVERS`) receivers, k the most any view could see (1 / cos of the
+        light's angle to the face).
+        """
         if self.texel_distance is not None:
             return self.texel_distance
         d = np.linalg.norm(self.centres[receivers] - self.cam_pos, axis=1)
-        return float(max(np.min(d), self.camera.znear))
+        near = float(max(np.min(d), self.camera.znear))
+        if toward is None or self.arrays is None:
+            return near
+        # A map every view shares weighs every receiver the same, as any view could see it:
+        # its size then follows the camera only by the nearest distance, as without faces.
+        cand = np.flatnonzero(d < near * MAX_TEXEL_STRETCH) if not self.any_view else np.arange(
+            len(d))
+        if len(cand) > MAX_STRETCH_RECEIVERS:
+            cand = cand[np.argpartition(d[cand], MAX_STRETCH_RECEIVERS - 1)
+                        [:MAX_STRETCH_RECEIVERS]]
+        idx = np.asarray(receivers)[cand]
+        owner, normal = self.arrays.patch_normals(idx)
+        if len(owner) == 0:
+            return near
+        centre = self.centres[idx][owner]
+        view = centre - self.cam_pos
+        length = np.sqrt((view * view).sum(axis=1))
+        ok = length > 0
+        if not ok.any():
+            return near
+        view = view[ok] / length[ok, None]
+        if self.any_view:
+            k = texel_stretch(normal[ok], toward.at(centre[ok]), None)
+            return near / float(np.clip(k.max() * AUTO_TEXEL_PIXELS, 1.0, MAX_TEXEL_STRETCH))
+        k = texel_stretch(normal[ok], toward.at(centre[ok]), view)
+        k = np.clip(k * AUTO_TEXEL_PIXELS, 1.0, MAX_TEXEL_STRETCH)
+        dist = np.maximum(d[cand][owner][ok], self.camera.znear) / k
+        return float(min(near, dist.min()))

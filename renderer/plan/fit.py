@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 
-from .context import AUTO_TEXEL_PIXELS
+from .context import AUTO_TEXEL_PIXELS, Toward
 from .geometry import (
     CUBE_FACE_PLANES,
     CUBE_FACES,
@@ -72,6 +72,14 @@ class Subject:
     light: Light
     position: np.ndarray
     receivers: np.ndarray
+
+
+def toward_light(s: Subject) -> Toward:
+    """Where the subject's light is, for the angle it meets the receivers' faces at."""
+    if s.light.type == "directional":
+        d = -np.asarray(s.light.direction, np.float64)
+        return Toward(d / np.linalg.norm(d), positional=False)
+    return Toward(np.asarray(s.position, np.float64), positional=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -182,7 +190,7 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
         return Skip("no_caster_in_frustum")
     near, far = _caster_near(ctx, reach, fit, (x0, x1, y0, y1)), reach.far
     extent = max(x1 - x0, y1 - y0, 1e-300)
-    size = ctx.map_size_for(extent, s.receivers)
+    size = ctx.map_size_for(extent, s.receivers, toward=toward_light(s))
     pad = ctx.margin(extent, size)
     x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
     # The deepest seen receiver point is the window's exact bound (no box beyond it any more):
@@ -291,7 +299,7 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     extent = float(max(a_hi[0] - a_lo[0], a_hi[1] - a_lo[1]))
     # Slopes become world sizes at a typical receiver's light depth.
     d_light = float(np.median(reach.depth[s.receivers].mean(axis=1).clip(min=near)))
-    size = ctx.map_size_for(extent * d_light, s.receivers)
+    size = ctx.map_size_for(extent * d_light, s.receivers, toward=toward_light(s))
     pad = ctx.margin(extent, size)
     a_lo, a_hi = a_lo - pad, a_hi + pad
     proj = frustum(a_lo[0] * near, a_hi[0] * near, a_lo[1] * near, a_hi[1] * near, near, far)
@@ -366,7 +374,7 @@ def fit_cube(ctx: PlanContext, s: Subject, reach: CubeReach, fit: np.ndarray) ->
     near = float(max(reach.depth_min[fit].min() * 0.999, far * 1e-5))
     d_light = float(np.median(reach.cheb[s.receivers].mean(axis=1).clip(min=near)))
     # A face spans two units at unit depth.
-    size = ctx.map_size_for(2 * d_light, s.receivers, cube=True)
+    size = ctx.map_size_for(2 * d_light, s.receivers, cube=True, toward=toward_light(s))
     return Fit(kind="cube", view=np.eye(4), proj=perspective(math.pi / 2, 1.0, near, far),
                near=near, far=far, map_size=size, texel=(0.0, 2.0 / size), faces=list(reach.faces),
                face_views=list(reach.face_views))

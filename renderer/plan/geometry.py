@@ -13,6 +13,12 @@ import numpy as np
 
 from ..errors import RequestError
 
+#: A surface faces a light when the cosine between its normal and the direction to the light
+#: exceeds this (89.94 degrees): the ray-traced reference compares shadows there, the camera
+#: pass's receiver plane follows every such surface (``PLANE_SLOPE_MAX``, its tangent, in
+#: :mod:`..shader_constants`), and the 'auto' map size weighs the faces lit at least this much.
+FACING_COS = 1e-3
+
 # GL cube-map faces: (forward, up) in the order +X, -X, +Y, -Y, +Z, -Z.
 CUBE_FACES = (
     ((1, 0, 0), (0, -1, 0)),
@@ -550,3 +556,52 @@ def face_meets_cone(forward: np.ndarray, direction: np.ndarray, cone_cos: float)
     """
     angle = math.acos(float(np.clip(np.dot(forward, direction), -1, 1)))
     return angle < math.acos(max(min(cone_cos, 1.0), -1.0)) + CUBE_FACE_HALF_DIAGONAL
+
+
+def texel_stretch(normal: np.ndarray, to_light: np.ndarray,
+                  view: np.ndarray | None) -> np.ndarray:
+    """How many times its own width a shadow-map texel spans on screen along its longest side,
+    on flat faces: the texel's square across the light's rays, cast along them onto the face
+    and seen from the camera (locally orthographic).
+
+    The image of a vector ``w`` across the light ``l`` is ``P_v (w - l (n.w) / (n.l))`` (the
+    face point it shades, then its part across the view ``v``); the stretch is the largest
+    singular value of that map on the plane across ``l``. With ``c = n.l``, ``a = v.l`` and
+    ``e = n.v``, its squared singular values add up to
+    ``F = 1 + a^2 + 2a (e - ca) / c + (1 - c^2)(1 - a^2) / c^2`` and multiply to
+    ``(e / c)^2`` (the ratio of the texel's area on screen to its own), so the largest is
+    ``sqrt((F + sqrt(F^2 - 4 (e / c)^2)) / 2)``. A face square to the light and to the view
+    gives 1, and a face lit at angle θ from its plane up to 1 / sin θ.
+
+    Parameters
+    ----------
+    normal : ndarray, shape (M, 3)
+        Unit face normals (either side).
+    to_light : ndarray, shape (M, 3)
+        Unit directions from the faces toward the light.
+    view : ndarray, shape (M, 3), or None
+        Unit directions from the camera to the faces; None for the most any view can see,
+        1 / c (seen square on along the stretch).
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        0 for a face whose side the camera sees is not lit (c at most :data:`FACING_COS`):
+        its lookups decide nothing.
+    """
+    c = (normal * to_light).sum(axis=1)
+    if view is None:
+        c = np.abs(c)
+        lit = c > FACING_COS
+        return np.where(lit, 1.0 / np.where(lit, c, 1.0), 0.0)
+    e = (normal * view).sum(axis=1)
+    # The side the camera sees: its normal points back at the camera (e < 0).
+    flip = np.where(e > 0, -1.0, 1.0)
+    c, e = c * flip, e * flip
+    lit = c > FACING_COS
+    c = np.where(lit, c, 1.0)
+    a = (view * to_light).sum(axis=1)
+    f = 1.0 + a * a + 2.0 * a * (e - c * a) / c + (1.0 - c * c) * (1.0 - a * a) / (c * c)
+    p = e / c
+    big = (f + np.sqrt(np.maximum(f * f - 4.0 * p * p, 0.0))) / 2.0
+    return np.where(lit, np.sqrt(np.maximum(big, 0.0)), 0.0)

@@ -15,7 +15,9 @@ its key: build a new :class:`Scene` for changed content.
 
 Planarity is a property of the primitive: it is decided once per primitive (an SVD of its
 vertices, cached per primitive in the same way) and carried to every instance of it at once, with
-one batched solve for the normals (the inverse transpose of each node matrix).
+one batched solve for the normals (the inverse transpose of each node matrix). So are a
+primitive's large flat patches (:func:`primitive_patches`: the orientations that hold a good share
+of its area), whose angle to a light decides how finely the 'auto' map size must sample them.
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ if TYPE_CHECKING:  # the scene module is the planner's input: types only
 # (unit normal, point) of a flat primitive, or None; keyed by the primitive so that repeated
 # renders of a cached scene do not redo the SVD, without writing into the scene's objects.
 _PLANES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# (normals, shares) of a primitive's large flat patches (:func:`primitive_patches`), same way.
+_PATCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 # SceneArrays by scene, same reasoning. One lock for both maps: the service may plan on more than
 # one thread, and a weak mapping is not safe to grow from two at once.
 _SCENES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -76,6 +80,52 @@ def primitive_plane(prim: Primitive) -> tuple[np.ndarray, np.ndarray] | None:
     with _LOCK:
         _PLANES[prim] = result
     return result
+
+
+#: A flat patch holds at least this share of its primitive's area.
+PATCH_MIN_SHARE = 0.05
+#: Face normals within about 1 degree count as one orientation (normals rounded to 1/64).
+_PATCH_GRID = 64.0
+
+
+def primitive_patches(prim: Primitive) -> np.ndarray:
+    """The orientations of a primitive's large flat patches, in its local frame.
+
+    Faces are grouped by their normal (rounded to :data:`_PATCH_GRID` steps per axis); a group
+    holding at least :data:`PATCH_MIN_SHARE` of the area is a patch, however many separate
+    faces it spans (a box's sides, a pedestal's rim). A curved mesh spreads its area over many
+    orientations and has none.
+
+    Returns
+    -------
+    ndarray, shape (P, 3), float64
+        Area-weighted unit normals, at most ``1 / PATCH_MIN_SHARE`` of them; (0, 3) for none.
+    """
+    with _LOCK:
+        if prim in _PATCHES:
+            return _PATCHES[prim]
+    p = prim.positions.astype(np.float64)
+    f = prim.indices.astype(np.intp)
+    out = np.zeros((0, 3))
+    if len(f) and len(p):
+        n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])  # (F, 3), |n| = 2 area
+        area = np.sqrt((n * n).sum(axis=1))
+        ok = np.isfinite(area) & (area > 0)
+        n, area = n[ok], area[ok]
+        total = float(area.sum())
+        if len(n) and total > 0:
+            key = np.round(n / area[:, None] * _PATCH_GRID).astype(np.int64)
+            _, group = np.unique(key, axis=0, return_inverse=True)
+            group = group.ravel()
+            share = np.bincount(group, area) / total
+            summed = np.stack([np.bincount(group, n[:, k]) for k in range(3)], axis=1)
+            big = share >= PATCH_MIN_SHARE
+            length = np.sqrt((summed[big] ** 2).sum(axis=1))
+            out = summed[big][length > 0] / length[length > 0, None]
+    out = _frozen(out)
+    with _LOCK:
+        _PATCHES[prim] = out
+    return out
 
 
 @dataclass(frozen=True)
@@ -196,6 +246,7 @@ class SceneArrays:
     # What the entry was read from (checked on reuse), and its origin-relative arrays by origin.
     _source: tuple = field(repr=False)
     _relative: dict = field(default_factory=dict, repr=False)
+    _patches: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def read(cls, scene: Scene) -> SceneArrays:
@@ -214,6 +265,76 @@ class SceneArrays:
         return cls(bounds=_frozen(bounds), cast=_frozen(cast), receive=_frozen(receive),
                    primitive=_frozen(prim), planes=planes, box=_frozen(box),
                    _source=_source(scene))
+
+    def patches(self) -> tuple[np.ndarray, np.ndarray]:
+        """World unit normals of every instance's flat patches (:func:`primitive_patches`),
+        computed on first use with one batched solve per primitive and kept.
+
+        Returns
+        -------
+        start : ndarray, shape (N + 1,), int
+            Instance i's patches are rows ``start[i]:start[i + 1]`` of ``normal``.
+        normal : ndarray, shape (M, 3)
+            Unit normals; an instance with a singular matrix has none.
+        """
+        with _LOCK:
+            hit = self._patches.get("all")
+        if hit is not None:
+            return hit
+        instances, primitives = self._source[0], self._source[2]
+        n = len(self.primitive)
+        per = np.zeros((n, 0, 3))
+        counts = np.zeros(n, np.intp)
+        blocks: dict[int, np.ndarray] = {}
+        for prim in np.unique(self.primitive).tolist():
+            local = primitive_patches(primitives[prim])
+            if len(local) == 0:
+                continue
+            at = np.flatnonzero(self.primitive == prim)
+            matrices = map(attrgetter("matrix"), map(instances.__getitem__, at.tolist()))
+            a = np.concatenate(list(matrices)).reshape(-1, 4, 4)[:, :3, :3]
+            ok = np.abs(np.linalg.det(a)) > 0
+            n_w = np.full((len(at), len(local), 3), np.nan)
+            if ok.any():
+                # Normals go through the inverse transpose: n_w = A^-T n, every patch at once.
+                rhs = np.broadcast_to(local.T, (int(ok.sum()), 3, len(local)))
+                n_w[ok] = np.linalg.solve(a[ok].transpose(0, 2, 1), rhs).transpose(0, 2, 1)
+            length = np.sqrt((n_w * n_w).sum(axis=2))
+            good = np.isfinite(length) & (length > 0)
+            n_w = np.where(good[..., None], n_w / np.where(good, length, 1.0)[..., None], np.nan)
+            for j, i in enumerate(at.tolist()):  # per instance of a patched primitive, once
+                blocks[i] = n_w[j][good[j]]
+            counts[at] = good.sum(axis=1)
+        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
+        normal = (np.concatenate([blocks[i] for i in sorted(blocks)]) if blocks
+                  else per.reshape(0, 3))
+        out = (_frozen(start), _frozen(np.ascontiguousarray(normal, np.float64)))
+        with _LOCK:
+            self._patches["all"] = out
+        return out
+
+    def patch_normals(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The flat patches of instances ``idx`` (:meth:`patches`).
+
+        Parameters
+        ----------
+        idx : ndarray, shape (K,), int
+
+        Returns
+        -------
+        owner : ndarray, shape (M,), int
+            Position in ``idx`` of each patch's instance.
+        normal : ndarray, shape (M, 3)
+        """
+        start, normal = self.patches()
+        first = start[idx]
+        count = start[idx + 1] - first
+        total = int(count.sum())
+        if total == 0:
+            return np.zeros(0, np.intp), np.zeros((0, 3))
+        owner = np.repeat(np.arange(len(idx)), count)
+        rows = np.arange(total) + np.repeat(first - (np.cumsum(count) - count), count)
+        return owner, normal[rows]
 
     def relative(self, origin: np.ndarray) -> RelativeArrays:
         """Boxes, corners and plane points relative to ``origin`` (cached per origin).

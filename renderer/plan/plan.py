@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .cascades import CascadeFit, plan_cascades
-from .context import PlanContext
+from .context import PlanContext, Toward
 from .culling import select_casters
 from .fit import Fit, Skip, Subject, choose_method
 from .shadow_region import (
@@ -318,15 +318,15 @@ def scene_fit_key(ctx: PlanContext, scene: Scene, index: int, light: Light) -> s
 
 @dataclass(frozen=True)
 class SceneFitPlan:
-    """A scene-fit light's plan and the map sizes it asked for: (world, receivers, cube, size)
-    per :meth:`PlanContext.map_size_for` call. Another view reuses it when each call would
+    """A scene-fit light's plan and the map sizes it asked for: (world, receivers, cube, toward,
+    size) per :meth:`PlanContext.map_size_for` call. Another view reuses it when each call would
     give it the same size."""
 
     light: LightShadow
-    sizes: tuple[tuple[float, np.ndarray, bool, int], ...]
+    sizes: tuple[tuple[float, np.ndarray, bool, Toward | None, int], ...]
 
     def fits(self, ctx: PlanContext) -> bool:
-        return all(ctx.map_size_for(w, r, c) == size for w, r, c, size in self.sizes)
+        return all(ctx.map_size_for(w, r, c, t) == size for w, r, c, t, size in self.sizes)
 
 
 def _plan_scene_fit(ctx: PlanContext, scene: Scene, index: int, light: Light,
@@ -340,7 +340,7 @@ def _plan_scene_fit(ctx: PlanContext, scene: Scene, index: int, light: Light,
         if kept.fits(ctx):
             return kept.light
         memo.discard(key)  # this view wants another map size: planned again, kept instead
-    sizes: list[tuple[float, np.ndarray, bool, int]] = []
+    sizes: list[tuple[float, np.ndarray, bool, Toward | None, int]] = []
     planned = plan_light(dataclasses.replace(ctx, sizes_read=sizes), index, light)
     # A frustum (a point light far from the scene: fit.choose_method) reads the camera for its
     # resolution warning, as a spot's does: planned every time.
