@@ -127,6 +127,30 @@ def test_instance_planes_equal_one_instance_at_a_time(seed):
             np.testing.assert_allclose(ctx.planes.point[i], plane[1], rtol=0, atol=1e-14 * scale)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_patch_normals_equal_one_instance_at_a_time(seed):
+    # Every instance's flat patches (a box's six sides, a quad's one, none for a sphere) through
+    # its own inverse transpose, in the order primitive_patches gives them; none for a singular
+    # matrix.
+    scene = mixed_scene(seed)
+    arrays = instances.scene_arrays(scene)
+    idx = np.arange(len(scene.instances))[::-1].copy()  # any order, as the plan asks
+    owner, normal = arrays.patch_normals(idx)
+    for k, i in enumerate(idx.tolist()):
+        inst = scene.instances[i]
+        local = instances.primitive_patches(scene.primitives[inst.primitive])
+        a = inst.matrix[:3, :3]
+        want = (np.zeros((0, 3)) if len(local) == 0 or abs(np.linalg.det(a)) == 0
+                else np.linalg.inv(a).T @ local.T)
+        if len(want):
+            want = (want / np.linalg.norm(want, axis=0)).T
+        np.testing.assert_allclose(normal[owner == k], want, atol=1e-12)
+    assert len(owner) == sum(
+        0 if abs(np.linalg.det(inst.matrix[:3, :3])) == 0
+        else len(instances.primitive_patches(scene.primitives[inst.primitive]))
+        for inst in scene.instances)
+
+
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("block", [8, 1 << 22])
 def test_shadowless_planes_equal_one_plane_at_a_time(seed, block, monkeypatch):

@@ -283,9 +283,8 @@ class SceneArrays:
             return hit
         instances, primitives = self._source[0], self._source[2]
         n = len(self.primitive)
-        per = np.zeros((n, 0, 3))
         counts = np.zeros(n, np.intp)
-        blocks: dict[int, np.ndarray] = {}
+        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for prim in np.unique(self.primitive).tolist():
             local = primitive_patches(primitives[prim])
             if len(local) == 0:
@@ -300,14 +299,15 @@ class SceneArrays:
                 rhs = np.broadcast_to(local.T, (int(ok.sum()), 3, len(local)))
                 n_w[ok] = np.linalg.solve(a[ok].transpose(0, 2, 1), rhs).transpose(0, 2, 1)
             length = np.sqrt((n_w * n_w).sum(axis=2))
-            good = np.isfinite(length) & (length > 0)
-            n_w = np.where(good[..., None], n_w / np.where(good, length, 1.0)[..., None], np.nan)
-            for j, i in enumerate(at.tolist()):  # per instance of a patched primitive, once
-                blocks[i] = n_w[j][good[j]]
+            good = np.isfinite(length) & (length > 0)  # (K, P)
             counts[at] = good.sum(axis=1)
+            parts.append((at, n_w / np.where(good, length, 1.0)[..., None], good))
         start = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
-        normal = (np.concatenate([blocks[i] for i in sorted(blocks)]) if blocks
-                  else per.reshape(0, 3))
+        normal = np.zeros((int(start[-1]), 3))
+        for at, n_w, good in parts:
+            # Instance at[j]'s good patches fill rows start[at[j]]:start[at[j] + 1], in order.
+            rows = start[at][:, None] + np.cumsum(good, axis=1) - 1
+            normal[rows[good]] = n_w[good]
         out = (_frozen(start), _frozen(np.ascontiguousarray(normal, np.float64)))
         with _LOCK:
             self._patches["all"] = out
