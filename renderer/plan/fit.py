@@ -388,27 +388,31 @@ CUBE: ShadowMethod[CubeReach] = ShadowMethod(reach_cube, fit_cube)
 
 
 def seen_cone(ctx: PlanContext, position: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """A cone from ``position`` holding every receiver point the camera sees: its unit axis (3,)
-    and half-angle in radians, or None where a seen point coincides with the light.
+    """A cone from ``position`` holding every receiver part the camera sees: its unit axis (3,)
+    and half-angle in radians, or None where the light lies inside one of them.
 
-    The axis is the mean of the directions to those points, which is within the smallest such
-    cone's half-angle of its axis: the half-angle found is at most twice the smallest.
+    Each seen box counts as the sphere around it and each vertex of a clipped part as a point,
+    so the cost is one row per box. The axis is the mean of the directions to their centres;
+    the half-angle is the widest centre's angle from it plus the sphere's own angular radius.
     """
-    pts = np.concatenate([ctx.corners[ctx.seen.whole].reshape(-1, 3), ctx.seen.points])
-    if len(pts) == 0:
+    whole = ctx.seen.whole
+    centre = np.concatenate([ctx.centres[whole], ctx.seen.points])
+    if len(centre) == 0:
         return None
-    delta = pts - position
-    dist = np.linalg.norm(delta, axis=1)
-    if not np.all(dist > 0):
+    half = (ctx.bounds[whole, 1] - ctx.bounds[whole, 0]) / 2
+    radius = np.concatenate([np.sqrt((half * half).sum(axis=1)), np.zeros(len(ctx.seen.points))])
+    delta = centre - position
+    dist = np.sqrt((delta * delta).sum(axis=1))
+    if not np.all(dist > radius):
         return None
     u = delta / dist[:, None]
     mean = u.mean(axis=0)
-    length = float(np.linalg.norm(mean))
+    length = float(np.sqrt(mean @ mean))
     if not length > 0:
         return None
     axis = mean / length
-    cos_min = float(np.clip((u @ axis).min(), -1.0, 1.0))
-    return axis, math.acos(cos_min)
+    angle = np.arccos(np.clip(u @ axis, -1.0, 1.0)) + np.arcsin(radius / dist)
+    return axis, float(angle.max())
 
 
 def choose_method(ctx: PlanContext, s: Subject) -> tuple[ShadowMethod, Subject]:
