@@ -16,7 +16,16 @@ from shadowmap.renderer.lights import resolve_lights
 from shadowmap.renderer.plan import LightShadow, RenderPlan, geometry, make_plan
 from shadowmap.renderer.plan.context import PlanContext, Toward
 from shadowmap.renderer.plan.culling import shadowless_planes, view_planes
-from shadowmap.renderer.plan.fit import CUBE, DIRECTIONAL, SPOT, Subject, choose_method
+from shadowmap.renderer.plan.fit import (
+    CUBE,
+    DIRECTIONAL,
+    MAX_SPOT_HALF_ANGLE,
+    SPOT,
+    Subject,
+    caster_cone,
+    choose_method,
+    seen_cone,
+)
 from shadowmap.renderer.plan.geometry import (
     CUBE_FACES,
     box_corners,
@@ -43,6 +52,9 @@ WIDE_SPOT = {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0
 POINT = {"type": "point", "position": [0.0, 2.0, 0.0]}
 #: A point light so far that everything seen lies in a narrow cone from it.
 FAR_POINT = {"type": "point", "position": [-60.0, 80.0, 40.0]}
+#: A low point light beside the casters of T.ground_only_receives: the ground it lights spreads
+#: over 90 degrees from it, the casters lie within 25.
+BESIDE = {"type": "point", "position": [-2.5, 1.8, 0.0]}
 AWAY = {"type": "spot", "position": [0, 3, 0], "direction": [0, 1, 0], "outer_cone_deg": 30}
 ROOM_CAMERA = {"eye": [3.0, 3.5, 3.0], "target": [-2, -1, -2], "yfov_deg": 45}
 
@@ -236,6 +248,45 @@ def test_each_light_kind_gets_its_fit(light_params, kind, method):
                                  "far"} | ({"faces"} if kind == "cube" else set())
     assert 0 < lp.near < lp.far or kind == "ortho"
     assert lp.map_size >= 256 and lp.map_size & (lp.map_size - 1) == 0
+
+
+def test_point_light_beside_its_casters_gets_one_frustum_around_them():
+    args = inputs(T.ground_only_receives(), lights=[BESIDE])
+    ctx = PlanContext.build(args[0], args[1], args[3], args[4])
+    lt = args[2][0]
+    position = lt.position - ctx.origin
+    seen = seen_cone(ctx, position)
+    assert seen is not None and seen[1] > MAX_SPOT_HALF_ANGLE  # the seen ground: no frustum
+    cone = caster_cone(ctx, position)
+    assert cone is not None
+    axis, half = cone
+    assert half < math.radians(25)
+    # Every caster's bounding sphere lies inside the cone and one touches its edge.
+    boxes = ctx.bounds[ctx.cast]
+    delta = boxes.mean(axis=1) - position
+    dist = np.linalg.norm(delta, axis=1)
+    radius = np.linalg.norm(boxes[:, 1] - boxes[:, 0], axis=1) / 2
+    reach = np.arccos(np.clip(delta @ axis / dist, -1, 1)) + np.arcsin(radius / dist)
+    assert np.all(reach <= half + 1e-12) and math.isclose(reach.max(), half, rel_tol=1e-12)
+    # Part of the seen ground lies behind the light's plane across that axis: the lookups
+    # there must read "lit", not a folded image of the map (tests/test_render.py renders it).
+    ground = ctx.bounds[~ctx.cast][0]
+    corners = np.array([[x, ground[0, 1], z] for x in ground[:, 0] for z in ground[:, 2]])
+    assert np.any((corners - position) @ axis < 0)
+
+    method, subject = choose_method(ctx, Subject(lt, position, ctx.receivers()))
+    assert method is SPOT and subject.light.type == "spot"
+    np.testing.assert_allclose(subject.light.direction, axis, rtol=0, atol=1e-15)
+    assert subject.light.outer_cone == half
+    lp = make_plan(*args).lights[0]
+    assert lp.kind == "perspective" and lp.light is lt and lp.reason is None
+    assert lp.casters == [1, 2]
+    # The same light with the ground casting too stands inside the ground's box: no cone holds
+    # every caster, and the seen ground spreads too wide: cube faces.
+    args = inputs(T.caster_on_ground(), lights=[BESIDE])
+    ctx = PlanContext.build(args[0], args[1], args[3], args[4])
+    assert caster_cone(ctx, args[2][0].position - ctx.origin) is None
+    assert make_plan(*args).lights[0].kind == "cube"
 
 
 def test_fixed_map_size_is_used_as_given():

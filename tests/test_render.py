@@ -73,6 +73,17 @@ def test_each_light_type_matches_reference(renderer, demo, light, kind):
     assert metrics[0].false_shadow_pct < 0.1
 
 
+def test_point_light_beside_its_casters_matches_reference(renderer):
+    """A low point light whose casters fit in a narrow cone gets one frustum around them
+    (plan.fit.caster_cone): the ground outside it, some of it behind the light, is lit."""
+    params = RenderParams(camera={"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]},
+                          lights=[{"type": "point", "position": [-2.5, 1.8, 0.0]}])
+    metrics, result, _ = measure(renderer, T.ground_only_receives(), params)
+    assert result.plan["lights"][0]["shadow_map"] == "perspective"
+    assert metrics[0].iou >= 0.98, metrics[0]
+    assert metrics[0].false_shadow_pct < 0.05, metrics[0]
+
+
 def test_several_lights_have_one_map_and_one_visibility_each(renderer, demo):
     lights = [
         {"type": "directional", "direction": [-0.6, -1.0, 0.25]},

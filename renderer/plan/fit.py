@@ -387,21 +387,17 @@ SPOT: ShadowMethod[SpotReach] = ShadowMethod(reach_spot, fit_spot)
 CUBE: ShadowMethod[CubeReach] = ShadowMethod(reach_cube, fit_cube)
 
 
-def seen_cone(ctx: PlanContext, position: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """A cone from ``position`` holding every receiver part the camera sees: its unit axis (3,)
-    and half-angle in radians, or None where the light lies inside one of them.
+def _cone(centres: np.ndarray, radius: np.ndarray,
+          position: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """A cone from ``position`` holding every sphere (``centres`` (K, 3), ``radius`` (K,)): its
+    unit axis (3,) and half-angle in radians, or None for no sphere or one holding ``position``.
 
-    Each seen box counts as the sphere around it and each vertex of a clipped part as a point,
-    so the cost is one row per box. The axis is the mean of the directions to their centres;
-    the half-angle is the widest centre's angle from it plus the sphere's own angular radius.
+    The axis is the mean of the directions to the centres; the half-angle is the widest
+    centre's angle from it plus that sphere's own angular radius.
     """
-    whole = ctx.seen.whole
-    centre = np.concatenate([ctx.centres[whole], ctx.seen.points])
-    if len(centre) == 0:
+    if len(centres) == 0:
         return None
-    half = (ctx.bounds[whole, 1] - ctx.bounds[whole, 0]) / 2
-    radius = np.concatenate([np.sqrt((half * half).sum(axis=1)), np.zeros(len(ctx.seen.points))])
-    delta = centre - position
+    delta = centres - position
     dist = np.sqrt((delta * delta).sum(axis=1))
     if not np.all(dist > radius):
         return None
@@ -415,22 +411,52 @@ def seen_cone(ctx: PlanContext, position: np.ndarray) -> tuple[np.ndarray, float
     return axis, float(angle.max())
 
 
+def _box_radius(ctx: PlanContext, boxes: np.ndarray) -> np.ndarray:
+    half = (ctx.bounds[boxes, 1] - ctx.bounds[boxes, 0]) / 2
+    return np.sqrt((half * half).sum(axis=1))
+
+
+def seen_cone(ctx: PlanContext, position: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """A cone from ``position`` holding every receiver part the camera sees (:func:`_cone`),
+    or None where the light lies inside one of them.
+
+    Each seen box counts as the sphere around it and each vertex of a clipped part as a point,
+    so the cost is one row per box.
+    """
+    whole = ctx.seen.whole
+    centres = np.concatenate([ctx.centres[whole], ctx.seen.points])
+    radius = np.concatenate([_box_radius(ctx, whole), np.zeros(len(ctx.seen.points))])
+    return _cone(centres, radius, position)
+
+
+def caster_cone(ctx: PlanContext, position: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """A cone from ``position`` holding every caster's box (as its sphere, :func:`_cone`), or
+    None where the light lies inside one of them. A shadow ray that meets a caster lies in it,
+    so a receiver outside it is lit."""
+    casters = np.flatnonzero(ctx.cast)
+    return _cone(ctx.centres[casters], _box_radius(ctx, casters), position)
+
+
 def choose_method(ctx: PlanContext, s: Subject) -> tuple[ShadowMethod, Subject]:
     """How a light is shadowed: directional lights with a box, spots up to
     :data:`MAX_SPOT_HALF_ANGLE` with a frustum, point lights and wider spots with a cube --
-    unless everything the camera sees of the receivers lies inside a cone from the light that
-    narrow (a far point light): then one frustum around that cone, in place of up to six cube
-    faces that would give the scene a few of their texels.
+    unless a cone from the light that narrow holds everything the camera sees of the receivers
+    (a far light: :func:`seen_cone`) or every caster (a light beside or above its casters:
+    :func:`caster_cone`; a receiver outside it is lit, since its ray to the light meets no
+    caster): then one frustum around the narrower cone, in place of up to six cube faces that
+    would spread their texels over all the light reaches.
 
-    Returns the method and the subject it fits: for a frustum around the seen receivers, the
-    light as a spot along that cone (which only bounds the map; shading uses the light itself).
+    Returns the method and the subject it fits: for a frustum around a cone, the light as a
+    spot along that cone (which only bounds the map; shading uses the light itself).
     """
     light = s.light
     if light.type == "directional":
         return DIRECTIONAL, s
     if light.type == "spot" and light.outer_cone <= MAX_SPOT_HALF_ANGLE:
         return SPOT, s
-    cone = seen_cone(ctx, s.position)
+    cones = [c for c in (seen_cone(ctx, s.position), caster_cone(ctx, s.position))
+             if c is not None]
+    cone = min(cones, key=lambda c: c[1]) if cones else None
     if cone is not None and cone[1] <= MAX_SPOT_HALF_ANGLE:
         axis, half_angle = cone
         if light.type == "spot":

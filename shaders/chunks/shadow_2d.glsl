@@ -57,6 +57,10 @@ float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp,
     vec3 q = p + ng * (u_bias.w * texel0 * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
     c = u_map2d_matrix[m] * vec4(q, 1.0);
 #endif
+    // Nothing casts between a perspective map's light and its near plane (the nearest caster),
+    // nor behind the light, where a point light fitted by a frustum around its casters
+    // (plan.fit.caster_cone) still shines: the divide below would fold such points into the map.
+    if (persp && c.w <= range.x) return 1.0;
     vec2 uv = persp ? c.xy / c.w : c.xy;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
     float t = persp ? (c.w - range.x) / span : c.z;
