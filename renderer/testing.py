@@ -322,11 +322,35 @@ def ground_only_receives() -> Scene:
     return scene
 
 
+#: The lights the corpus test and ``bench/corpus.py`` shine on every model, and the shadow IoU
+#: each must reach against the reference.
+CORPUS_LIGHT_KINDS = ("directional", "spot", "point")
+CORPUS_IOU = 0.97
+
+
+def corpus_lights(scene: Scene) -> dict[str, list[dict]]:
+    """A directional, a spot and a point light for ``scene``, placed from its bounds (request
+    dicts, one list per kind of :data:`CORPUS_LIGHT_KINDS`): the spot and the point light above
+    the scene, 2.1 and 1.6 bounding radii from its centre, off to one side."""
+    lo, hi = scene.bounds
+    c = (lo + hi) / 2
+    r = float(np.linalg.norm(hi - lo)) / 2
+    return {
+        "directional": [{"type": "directional", "direction": [-0.5, -1.0, 0.2]}],
+        "spot": [{"type": "spot", "position": (c + np.array([0.3, 2.0, 0.4]) * r).tolist(),
+                  "target": c.tolist(), "outer_cone_deg": 50}],
+        "point": [{"type": "point", "position": (c + np.array([0.2, 1.5, 0.3]) * r).tolist()}],
+    }
+
+
 __all__ = [
+    "CORPUS_IOU",
+    "CORPUS_LIGHT_KINDS",
     "LargeScene",
     "Measurement",
     "band_metrics",
     "city_grid",
+    "corpus_lights",
     "small_caster_on_huge_plane",
     "terrain_to_horizon",
     "caster_on_ground",

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from shadowmap.renderer import RenderParams, load_scene
+from shadowmap.renderer import testing as T
 from test_gltf import USHORT, Gltf, png
 
 pytestmark = pytest.mark.gl
@@ -118,20 +119,6 @@ def _corpus() -> list[str]:
     return sorted(p.name for p in models_dir().iterdir() if p.suffix in (".glb", ".gltf"))
 
 
-def _three_lights(scene) -> dict[str, list[dict]]:
-    lo, hi = scene.bounds
-    c = (lo + hi) / 2
-    r = float(np.linalg.norm(hi - lo)) / 2
-    return {
-        "directional": [{"type": "directional", "direction": [-0.5, -1.0, 0.2]}],
-        "spot": [{"type": "spot", "position": (c + np.array([0.3, 2.0, 0.4]) * r).tolist(),
-                  "target": c.tolist(), "outer_cone_deg": 50}],
-        "point": [{"type": "point", "position": (c + np.array([0.2, 1.5, 0.3]) * r).tolist()}],
-    }
-
-
-LIGHT_KINDS = ("directional", "spot", "point")
-
 #: Known gaps by (file, light), measured at 640x480 with the default settings: the test fails
 #: the day one is fixed, so its mark must then go.
 KNOWN_GAPS = {
@@ -147,7 +134,7 @@ KNOWN_GAPS = {
 def _corpus_cases() -> list:
     return [pytest.param(n, k, marks=pytest.mark.xfail(strict=True, reason=KNOWN_GAPS[n, k]))
             if (n, k) in KNOWN_GAPS else pytest.param(n, k)
-            for n in _corpus() for k in LIGHT_KINDS]
+            for n in _corpus() for k in T.CORPUS_LIGHT_KINDS]
 
 
 @pytest.mark.slow
@@ -156,8 +143,8 @@ def test_every_model_renders_right_under_every_light_type(renderer, models, name
     """Every file in the models folder renders with the reference's shadows under a directional,
     a spot and a point light (or would have to fail with a named SceneError: none does)."""
     from conftest import load_model
-    from shadowmap.renderer import testing as T
 
     scene = load_model(models, name, ground=False)
-    m = T.measure(renderer, scene.with_ground(), RenderParams(lights=_three_lights(scene)[kind]))
-    assert m.metrics[0].iou >= 0.97, (name, kind, m.metrics[0].iou)
+    lights = T.corpus_lights(scene)[kind]
+    m = T.measure(renderer, scene.with_ground(), RenderParams(lights=lights))
+    assert m.metrics[0].iou >= T.CORPUS_IOU, (name, kind, m.metrics[0].iou)
