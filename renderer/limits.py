@@ -283,7 +283,8 @@ def request_lights(params: RenderParams, scene: Scene | None = None) -> list[tup
 
 def scene_upload_bytes(scene: Scene) -> int:
     """Bytes of the scene's GPU upload: float32 vertex attributes, uint32 indices, each
-    distinct texture as RGBA8 with its mipmaps (4/3), and the instances."""
+    distinct texture as RGBA8 with its mipmaps (4/3) and, for a cut-out caster's, its R8 alpha
+    copy (:class:`~shadowmap.renderer.gl.resources.Texture2D`), and the instances."""
     total = 0
     textures: dict[int, int] = {}
     for p in scene.primitives:
@@ -292,7 +293,8 @@ def scene_upload_bytes(scene: Scene) -> int:
         total += (p.colors.nbytes if p.colors is not None else 0)
         tex = p.material.texture
         if tex is not None:
-            textures[id(tex)] = tex.nbytes * 4 // 3
+            alpha = tex.nbytes // 4 if p.material.shadow_cutoff is not None else 0
+            textures[id(tex)] = max(textures.get(id(tex), 0), tex.nbytes * 4 // 3 + alpha)
     return total + sum(textures.values()) + INSTANCE_UPLOAD_BYTES * len(scene.instances)
 
 

@@ -33,7 +33,7 @@ from .camera import Camera
 from .errors import ReferenceUnavailable, RequestError
 from .lights import Light
 from .plan.geometry import FACING_COS
-from .scene import Scene
+from .scene import BLEND_SHADOW_CUTOFF, Scene
 
 if TYPE_CHECKING:
     from trimesh.ray.ray_pyembree import RayMeshIntersector
@@ -205,10 +205,12 @@ class _Tracer:
         self.receive_inst = np.array([i.receive_shadow for i in scene.instances], bool)
 
         # Alpha a hit must reach to count: primary rays stop on MASK surfaces at the cutoff;
-        # shadow rays are stopped by MASK surfaces at the cutoff and by BLEND ones at 0.5.
+        # shadow rays are stopped by MASK surfaces at the cutoff and by BLEND ones at
+        # BLEND_SHADOW_CUTOFF (as the light pass does: Material.shadow_cutoff).
         cut = p_cut[self.face_prim]
         self.primary_threshold = np.where(mode == _MASK, cut, 0.0)
-        self.shadow_threshold = np.where(mode == _MASK, cut, np.where(mode == _BLEND, 0.5, 0.0))
+        self.shadow_threshold = np.where(mode == _MASK, cut,
+                                         np.where(mode == _BLEND, BLEND_SHADOW_CUTOFF, 0.0))
         self.primary_test = vary & (mode == _MASK)
         self.shadow_test = vary & cast
         primary_in = (mode == _OPAQUE) | ((mode == _MASK) & (vary | (base >= cut)))

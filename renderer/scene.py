@@ -34,6 +34,11 @@ if TYPE_CHECKING:
     import trimesh
 
 
+#: A blended surface casts a shadow where its alpha reaches this (a cut-out at half coverage):
+#: a shadow map holds one depth per texel, so it cannot cast a partial shadow.
+BLEND_SHADOW_CUTOFF = 0.5
+
+
 @dataclass(frozen=True, eq=False)
 class Material:
     """The parts of a glTF metallic-roughness material this renderer honours.
@@ -55,6 +60,16 @@ class Material:
     alpha_mode: str = "OPAQUE"
     alpha_cutoff: float = 0.5
     double_sided: bool = False
+
+    @property
+    def shadow_cutoff(self) -> float | None:
+        """Alpha below which the surface casts no shadow: its cutoff for MASK,
+        :data:`BLEND_SHADOW_CUTOFF` for BLEND, None (no test) for OPAQUE."""
+        if self.alpha_mode == "MASK":
+            return float(self.alpha_cutoff)
+        if self.alpha_mode == "BLEND":
+            return BLEND_SHADOW_CUTOFF
+        return None
 
 
 @dataclass(eq=False)

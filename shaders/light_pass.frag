@@ -13,7 +13,7 @@
 in float v_light_depth;
 #if ALPHA_TEST
 in vec2 v_uv;
-uniform sampler2D u_base_texture;
+uniform sampler2D u_alpha_texture;  // the base colour texture's alpha, level 0 (R8)
 uniform float u_base_alpha;
 uniform float u_alpha_cutoff;
 #endif
@@ -30,8 +30,9 @@ layout(location = 0) out vec4 o_depth;
 
 void main() {
 #if ALPHA_TEST
-    // Level 0: mipmaps would average thin cut-out features away at the light's texel rate.
-    if (u_base_alpha * textureLod(u_base_texture, v_uv, 0.0).a < u_alpha_cutoff) discard;
+    // Level 0 (the copy has no other): mipmaps would average thin cut-out features away at the
+    // light's texel rate.
+    if (u_base_alpha * textureLod(u_alpha_texture, v_uv, 0.0).r < u_alpha_cutoff) discard;
 #endif
     float t = (v_light_depth - u_depth_range.x) / (u_depth_range.y - u_depth_range.x);
 #if POLYGON_OFFSET

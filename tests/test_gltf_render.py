@@ -113,6 +113,44 @@ def test_alpha_cutoff_is_exact_in_both_passes(renderer):
     assert shadow[None] == shadow[0.5] and shadow[1.0] < 0.1 * shadow[0.0]
 
 
+
+def test_cut_out_casters_are_tested_against_an_exact_alpha_copy(renderer, models):
+    """The light pass reads a cut-out caster's alpha from an R8 copy of the texture's level 0:
+    the same bytes (bottom row first, as the RGBA texture), no mipmaps; an opaque material's
+    texture gets none."""
+    from OpenGL import GL
+
+    from conftest import load_model
+
+    cut_out = load_scene(_cut_out_quad(0.5))
+    gpu, kept, _ = renderer._upload(cut_out)
+    try:
+        textured = [gp for gp in gpu.primitives if gp.texture is not None]
+        assert len(textured) == 1 and textured[0].material.shadow_cutoff == 0.5
+        tex = textured[0].texture
+        image = textured[0].material.texture
+        h, w = image.shape[:2]
+        GL.glBindTexture(GL.GL_TEXTURE_2D, tex.alpha_id)
+        levels = GL.glGetTexParameteriv(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAX_LEVEL)
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+        raw = GL.glGetTexImage(GL.GL_TEXTURE_2D, 0, GL.GL_RED, GL.GL_UNSIGNED_BYTE)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        alpha = np.frombuffer(raw, np.uint8).reshape(h, w)
+        np.testing.assert_array_equal(alpha, image[::-1, :, 3])
+        assert int(np.asarray(levels).reshape(-1)[0]) == 0
+        assert tex.nbytes == h * w * 4 * 4 // 3 + h * w
+    finally:
+        if not kept:
+            gpu.release()
+    boxes = load_model(models, "BoxTextured.glb", ground=False)
+    gpu, kept, _ = renderer._upload(boxes)
+    try:
+        opaque = [gp.texture for gp in gpu.primitives if gp.texture is not None]
+        assert opaque and all(t.alpha_id == 0 for t in opaque)
+    finally:
+        if not kept:
+            gpu.release()
+
 def _corpus() -> list[str]:
     from conftest import models_dir
 

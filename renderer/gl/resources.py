@@ -121,43 +121,83 @@ class VertexArray:
 
 
 class Texture2D:
-    """A mipmapped RGBA8 texture of an image, repeated in both directions, trilinear.
+    """A mipmapped RGBA8 texture of an image, repeated in both directions, trilinear; with
+    ``alpha``, also its alpha channel alone at full resolution (:attr:`alpha_id`).
+
+    The light pass tests cut-out casters against that R8 copy: one channel and no mipmaps, so a
+    software rasterizer's sampler converts a quarter of the data per texel, and the bilinear
+    level-0 value is the RGBA texture's own alpha at the same point (same texels, filter and
+    wrapping), so the map is the same.
 
     Parameters
     ----------
     image : ndarray, shape (H, W, 4), uint8
         Rows top to bottom, as stored in the file; uploaded bottom row first, so that texture
         coordinate v = 0 is the image's bottom row (the convention of ``Primitive.uv``).
+    alpha : bool
+        Upload the alpha copy as well (:meth:`add_alpha` adds it later).
     """
 
-    def __init__(self, image: np.ndarray) -> None:
-        data = np.ascontiguousarray(image[::-1], dtype=np.uint8)
+    def __init__(self, image: np.ndarray, alpha: bool = False) -> None:
+        data = _bottom_up(image)
         h, w = data.shape[:2]
-        self.id = int(GL.glGenTextures(1))
-        GL.glBindTexture(GL.GL_TEXTURE_2D, self.id)
-        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
-        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA8, w, h, 0, GL.GL_RGBA,
-                        GL.GL_UNSIGNED_BYTE, data)
-        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 4)
-        GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER,
-                           GL.GL_LINEAR_MIPMAP_LINEAR)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, GL.GL_REPEAT)
-        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
-        #: bytes on the GPU, the mip chain included
+        self.id = _texture(data, GL.GL_RGBA8, GL.GL_RGBA, mipmaps=True)
+        self.alpha_id = 0
+        #: bytes on the GPU, the mip chain (and the alpha copy) included
         self.nbytes = data.nbytes * 4 // 3
+        if alpha:
+            self.add_alpha(image)
+
+    def add_alpha(self, image: np.ndarray) -> None:
+        """Upload the alpha copy of ``image`` (the image this texture was made from), once."""
+        if self.alpha_id:
+            return
+        a = np.ascontiguousarray(_bottom_up(image)[..., 3])
+        self.alpha_id = _texture(a, GL.GL_R8, GL.GL_RED, mipmaps=False)
+        self.nbytes += a.nbytes
 
     def bind(self) -> None:
         """Bind to ``GL_TEXTURE_2D`` of the active texture unit."""
         GL.glBindTexture(GL.GL_TEXTURE_2D, self.id)
 
+    def bind_alpha(self) -> None:
+        """Bind the alpha copy to ``GL_TEXTURE_2D`` of the active texture unit."""
+        if not self.alpha_id:
+            raise RenderError("the texture has no alpha copy (Texture2D.add_alpha)")
+        GL.glBindTexture(GL.GL_TEXTURE_2D, self.alpha_id)
+
     def release(self) -> None:
-        """Delete the texture. Safe to call twice."""
-        if self.id:
-            GL.glDeleteTextures([self.id])
-            self.id = 0
+        """Delete the textures. Safe to call twice."""
+        ids = [t for t in (self.id, self.alpha_id) if t]
+        if ids:
+            GL.glDeleteTextures(ids)
+        self.id = self.alpha_id = 0
+
+
+def _bottom_up(image: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(image[::-1], dtype=np.uint8)
+
+
+def _texture(data: np.ndarray, internal: int, fmt: int, mipmaps: bool) -> int:
+    """A repeated, bilinear (trilinear with ``mipmaps``) 2D texture of ``data``, (H, W) or
+    (H, W, C) bytes, row 0 first."""
+    h, w = data.shape[:2]
+    tex = int(GL.glGenTextures(1))
+    GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+    GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+    GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, internal, w, h, 0, fmt, GL.GL_UNSIGNED_BYTE, data)
+    GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 4)
+    if mipmaps:
+        GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
+    else:
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAX_LEVEL, 0)
+    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
+    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER,
+                       GL.GL_LINEAR_MIPMAP_LINEAR if mipmaps else GL.GL_LINEAR)
+    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT)
+    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, GL.GL_REPEAT)
+    GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+    return tex
 
 
 # --------------------------------------------------------------------------------------------
@@ -442,10 +482,16 @@ class GpuScene:
                 tex = None
                 if prim.material.texture is not None:
                     key = id(prim.material.texture)
+                    # Cut-out casters are tested against the texture's alpha copy.
+                    alpha = prim.material.shadow_cutoff is not None
                     tex = textures.get(key)
                     if tex is None:
-                        tex = textures[key] = Texture2D(prim.material.texture)
+                        tex = textures[key] = Texture2D(prim.material.texture, alpha)
                         gs.nbytes += tex.nbytes
+                    elif alpha and not tex.alpha_id:
+                        before = tex.nbytes
+                        tex.add_alpha(prim.material.texture)
+                        gs.nbytes += tex.nbytes - before
                 gp = GpuPrimitive(
                     mesh=mesh,
                     instances=inst_ids,

@@ -19,7 +19,6 @@ from ..gl.programs import ProgramCache
 from ..gl.resources import Framebuffer, GpuScene
 from ..params import ShadowParams
 from ..plan import LightShadow
-from ..scene import Material
 
 
 @dataclass(eq=False)
@@ -253,7 +252,7 @@ class LightPass:
         for p, _, slots in groups:
             gp = gpu.primitives[p]
             mat = gp.material
-            cutoff = _shadow_cutoff(mat)
+            cutoff = mat.shadow_cutoff
             if cutoff is not None and gp.texture is None and mat.base_color[3] < cutoff:
                 continue  # wholly transparent for shadows
             texture = gp.texture if cutoff is not None else None
@@ -278,8 +277,8 @@ class LightPass:
                 prog.set("u_polygon_offset", (po_factor, po_units))
             if texture is not None and cutoff is not None:
                 GL.glActiveTexture(GL.GL_TEXTURE0)
-                texture.bind()
-                prog.set("u_base_texture", 0)
+                texture.bind_alpha()
+                prog.set("u_alpha_texture", 0)
                 prog.set("u_base_alpha", float(mat.base_color[3]))
                 prog.set("u_alpha_cutoff", cutoff)
             gp.draw(None if len(slots) == len(gp.instances) else slots)
@@ -291,11 +290,3 @@ class LightPass:
                 fb.release()
         self.pool.clear()
 
-
-def _shadow_cutoff(material: Material) -> float | None:
-    """Alpha below which a material casts no shadow: its cutoff for MASK, 0.5 for BLEND."""
-    if material.alpha_mode == "MASK":
-        return float(material.alpha_cutoff)
-    if material.alpha_mode == "BLEND":
-        return 0.5
-    return None
