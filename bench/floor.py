@@ -109,19 +109,20 @@ class Floor:
         self.camera_prog = shaders.compileProgram(
             shaders.compileShader(CAMERA_VS, GL.GL_VERTEX_SHADER),
             shaders.compileShader(CAMERA_FS, GL.GL_FRAGMENT_SHADER))
-        # Every map the plan renders: (size, view-projection, caster ranges).
+        # Every map the plan renders: (size, view-projection, caster ranges, depth bits).
         self.maps = []
-        for lp in plan.map_lights:
+        for lp in plan.lights:
             for m in lp.maps:  # each cascade, or the light's one map
                 views = [m.face_views[f] for f in m.faces] if m.kind == "cube" else [m.view]
                 for view in views:
                     self.maps.append((m.map_size, (m.proj @ view).astype(np.float32),
-                                      self._ranges(m.casters)))
+                                      self._ranges(m.casters), lp.depth_bits or 32))
         # One depth texture per map, as ours has (a cube face, a cascade each): maps sharing
         # one target would let the driver drop all but the last (a clear discards the work
         # queued for the target before it).
+        # Of the texture format the plan chose (``depth_bits``): the same light pass as ours.
         self.textures: dict[int, tuple[int, int]] = {
-            k: self._depth_target(size) for k, (size, _, _) in enumerate(self.maps)}
+            k: self._depth_target(size, bits) for k, (size, _, _, bits) in enumerate(self.maps)}
         cam = plan.camera
         self.width, self.height = cam.width, cam.height
         view = np.linalg.inv(cam.pose.copy())
@@ -138,11 +139,12 @@ class Floor:
         idx = np.asarray(indices, np.int64)
         return self.starts[idx].copy(), self.counts[idx].copy(), len(idx)
 
-    def _depth_target(self, size: int) -> tuple[int, int]:
+    def _depth_target(self, size: int, bits: int) -> tuple[int, int]:
         GL = self.GL
         tex = GL.glGenTextures(1)
         GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
-        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_DEPTH_COMPONENT32F, size, size, 0,
+        fmt = GL.GL_DEPTH_COMPONENT16 if bits == 16 else GL.GL_DEPTH_COMPONENT32F
+        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, fmt, size, size, 0,
                         GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, None)
         fbo = GL.glGenFramebuffers(1)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, fbo)
@@ -183,7 +185,7 @@ class Floor:
         GL.glBindVertexArray(self.vao)
         GL.glUseProgram(self.depth_prog)
         loc = GL.glGetUniformLocation(self.depth_prog, "u_mvp")
-        for k, (size, mvp, (first, count, n)) in enumerate(self.maps):
+        for k, (size, mvp, (first, count, n), _) in enumerate(self.maps):
             GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.textures[k][0])
             GL.glViewport(0, 0, size, size)
             GL.glClear(GL.GL_DEPTH_BUFFER_BIT)

@@ -1,16 +1,18 @@
 """CPU mirrors of the depth encodings in ``shaders/chunks/depth_encoding.glsl``.
 
 Used to decode read-back shadow maps (the ``light_depth`` output) and to check the GL packing in
-the tests. Each function works on arrays of any shape. :data:`ENCODING_ID` and :data:`STEP` are
-also the shaders' ``ENC_*`` and ``ENC_STEP_*`` (see :mod:`.shader_constants`).
+the tests. Each function works on arrays of any shape. :data:`ENCODING_ID` is also the shaders'
+``ENC_*`` (see :mod:`.shader_constants`); :data:`STEP` is each encoding's depth step, which the
+passes hand the shaders per map (``ShadowMap.step``; a 16-bit depth texture's is 1/65535).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-# Step of each encoding in units of the normalised depth t. The byte packings carry 24 bits:
-# that is all a float32 depth holds, so rgba8's fourth byte adds nothing in practice.
+# Step of each encoding in units of the normalised depth t ("depth": a 32-bit float depth
+# texture). The byte packings carry 24 bits: that is all a float32 depth holds, so rgba8's fourth
+# byte adds nothing in practice.
 STEP = {
     "r8": 1.0 / 255.0,
     "rg8": 1.0 / 2550.0,

@@ -78,6 +78,7 @@ MapSize = Annotated[Literal[16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 1
 PcfKernel = Annotated[Literal[1, 3, 5, 7, 9], BeforeValidator(_integer)]
 Cascades = Annotated[Literal[1, 2, 3, 4, "auto"], BeforeValidator(_integer),
                      _number_or_auto(tuple(range(1, MAX_CASCADES + 1)))]
+DepthBits = Annotated[Literal[16, 32, "auto"], BeforeValidator(_integer), _number_or_auto((16, 32))]
 #: Largest image side; the service's ``max_pixels`` (and ``max_image_side``) are usually lower.
 MAX_IMAGE_SIDE = 16384
 #: Largest magnitude of a coordinate (positions, targets, pose translations), in scene units.
@@ -470,9 +471,15 @@ class ShadowParams(_Model):
 
     encoding: Encoding = Field(
         default="depth",
-        description="how the light pass stores depth: 'depth', a 32-bit float depth texture "
-        "with the hardware's compare; 'rgba8', 'rgb8', 'rg8', 'r8', linear depth packed into "
+        description="how the light pass stores depth: 'depth', a depth texture (16-bit or "
+        "32-bit float, see depth_bits); 'rgba8', 'rgb8', 'rg8', 'r8', linear depth packed into "
         "that many 8-bit colour channels", examples=["depth"])
+    depth_bits: DepthBits = Field(
+        default="auto",
+        description="bits of a map's depth texture (encoding 'depth'): 16 or 32 (float), or "
+        "'auto': 16 where one 16-bit step of the map's depth range is at most an eighth of its "
+        "finest texel (the quantisation bias then stays under a fifth of a texel), else 32",
+        examples=["auto", 32])
     map_size: MapSize = Field(
         default="auto",
         description="texels per side (a power of two, at most the service's max_map_size), or "

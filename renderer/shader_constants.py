@@ -6,9 +6,8 @@ spell out the values, nor guard them with ``#ifndef``: a program built without t
 compile instead of silently using numbers that have drifted from Python's.
 
 - ``ENC_DEPTH``, ``ENC_R8``, ... : the depth encodings' ids (:data:`.encodings.ENCODING_ID`),
-  which the ``ENCODING`` define takes; ``ENC_STEP_DEPTH``, ``ENC_STEP_R8``, ... : each encoding's
-  depth step (:data:`.encodings.STEP`), the unit of the quantisation bias and of the polygon
-  offset.
+  which the ``ENCODING`` define takes. (Each map's depth step, the unit of the quantisation bias
+  and of the polygon offset, is a uniform: a depth texture's depends on the bits its plan chose.)
 - ``LIGHT_DIRECTIONAL``, ``LIGHT_SPOT``, ``LIGHT_POINT``: the light type ids of
   :data:`LIGHT_TYPES`, the values of the camera pass's ``LIGHT_TYPES`` list.
 - ``MAX_LIGHTS``: lights one camera pass shades (:data:`.limits.MAX_LIGHTS`).
@@ -62,8 +61,6 @@ def shader_constants() -> tuple[tuple[str, str], ...]:
     out: list[tuple[str, str]] = []
     for name, ident in sorted(encodings.ENCODING_ID.items(), key=lambda kv: kv[1]):
         out.append((f"ENC_{name.upper()}", str(ident)))
-    for name in sorted(encodings.ENCODING_ID, key=lambda n: encodings.ENCODING_ID[n]):
-        out.append((f"ENC_STEP_{name.upper()}", _float_literal(encodings.STEP[name])))
     for name, ident in sorted(LIGHT_TYPES.items(), key=lambda kv: kv[1]):
         out.append((f"LIGHT_{name.upper()}", str(ident)))
     out.append(("MAX_LIGHTS", str(MAX_LIGHTS)))

@@ -21,7 +21,7 @@ uniform float u_alpha_cutoff;
 uniform vec2 u_depth_range;  // near, far of the light's frustum
 
 #if POLYGON_OFFSET
-uniform vec2 u_polygon_offset;  // factor (x depth slope), units (x encoding step)
+uniform vec2 u_polygon_offset;  // factor (x depth slope), units x the map's depth step
 #endif
 
 #if ENCODING != ENC_DEPTH
@@ -36,7 +36,7 @@ void main() {
 #endif
     float t = (v_light_depth - u_depth_range.x) / (u_depth_range.y - u_depth_range.x);
 #if POLYGON_OFFSET
-    t += u_polygon_offset.x * max(abs(dFdx(t)), abs(dFdy(t))) + u_polygon_offset.y * ENC_STEP;
+    t += u_polygon_offset.x * max(abs(dFdx(t)), abs(dFdy(t))) + u_polygon_offset.y;
 #endif
 #if WRITE_DEPTH
     // Perspective lights: test and store linear depth rather than the hyperbolic window depth.

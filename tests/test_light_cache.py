@@ -180,11 +180,11 @@ def test_maps_over_the_cache_bound_are_not_cached(demo):
 
 @pytest.mark.gl
 def test_evicted_maps_are_reused_not_leaked(demo):
-    # Room for one 256² map: every new fit evicts the last, whose framebuffer the next draw
-    # takes from the pool.
+    # Room for one 256² map of 32-bit depths: every new fit evicts the last, whose framebuffer
+    # the next draw takes from the pool.
     with Renderer(map_cache_bytes=300 * 2**10) as r:
         for k in range(6):
-            r.render(demo, orbit(k, fit="view", map_size=256, cascades=1))
+            r.render(demo, orbit(k, fit="view", map_size=256, cascades=1, depth_bits=32))
         held = sum(len(v) for v in r.light_pass.pool.values()) + len(r.light_pass.cache)
         assert len(r.light_pass.cache) == 1
         assert held <= 2

@@ -18,12 +18,15 @@ from shadowmap.renderer.plan.context import PlanContext, Toward
 from shadowmap.renderer.plan.culling import shadowless_planes, view_planes
 from shadowmap.renderer.plan.fit import (
     CUBE,
+    DEPTH16_MAX_STEP_TEXELS,
+    DEPTH16_STEP,
     DIRECTIONAL,
     MAX_SPOT_HALF_ANGLE,
     SPOT,
     Subject,
     caster_cone,
     choose_method,
+    depth16_is_enough,
     seen_cone,
 )
 from shadowmap.renderer.plan.geometry import (
@@ -42,6 +45,7 @@ from shadowmap.renderer.plan.geometry import (
     pyramid_planes,
     transform_points,
 )
+from shadowmap.renderer.plan.plan import depth_bits
 from shadowmap.renderer.scene import Instance, Scene, scene_from_meshes, world_bounds
 
 CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
@@ -245,7 +249,8 @@ def test_each_light_kind_gets_its_fit(light_params, kind, method):
     lp = make_plan(*args).lights[0]
     assert lp.kind == kind and lp.reason is None
     assert set(lp.to_dict()) == {"type", "shadow_map", "map_size", "casters", "skipped", "near",
-                                 "far"} | ({"faces"} if kind == "cube" else set())
+                                 "far", "depth_bits"} | ({"faces"} if kind == "cube" else set())
+    assert lp.depth_bits in (16, 32)
     assert 0 < lp.near < lp.far or kind == "ortho"
     assert lp.map_size >= 256 and lp.map_size & (lp.map_size - 1) == 0
 
@@ -689,3 +694,35 @@ def test_clip_boxes_past_the_cap_is_larger_never_smaller(monkeypatch):
     capped = clip_boxes(boxes, planes, hull, 1e-9)
     assert np.all(capped.min(axis=0) <= exact.min(axis=0) + 1e-12)
     assert np.all(capped.max(axis=0) >= exact.max(axis=0) - 1e-12)
+
+
+def test_sixteen_bits_when_a_step_is_at_most_an_eighth_of_the_nearest_texel():
+    texel = 1 / 1024  # world units, orthographic: the same everywhere
+    edge = DEPTH16_MAX_STEP_TEXELS * texel / DEPTH16_STEP  # the deepest range 16 bits allow
+    assert depth16_is_enough(-1.0, -1.0 + edge * 0.999, (texel, 0.0))
+    assert not depth16_is_enough(-1.0, -1.0 + edge * 1.001, (texel, 0.0))
+    # Perspective and cube maps: a texel grows with depth, so the one at ``near`` decides.
+    per_unit = 1 / 2048
+    far = 1.0 + DEPTH16_MAX_STEP_TEXELS * per_unit * 1.0 / DEPTH16_STEP
+    assert depth16_is_enough(1.0, far * 0.999, (0.0, per_unit))
+    assert not depth16_is_enough(0.5, far, (0.0, per_unit))  # a nearer caster: finer texels
+    assert not depth16_is_enough(0.0, 1.0, (0.0, per_unit))  # a texel of no size
+
+
+def test_depth_bits_follow_the_setting_the_encoding_and_the_fit():
+    scene = T.caster_on_ground()
+    assert light(scene, SUN).depth_bits == 16  # a box on a ground: a shallow range
+    assert light(scene, SUN, shadows={"depth_bits": 32}).depth_bits == 32
+    assert light(scene, SUN, shadows={"depth_bits": 16}).to_dict()["depth_bits"] == 16
+    for enc in ("rg8", "rgba8"):  # colour packings: no depth texture to size
+        lp = light(scene, SUN, shadows={"encoding": enc})
+        assert lp.depth_bits == 0 and "depth_bits" not in lp.to_dict()
+    no_pass = light(scene, {**SUN, "cast_shadows": False})
+    assert no_pass.depth_bits == 0 and "depth_bits" not in no_pass.to_dict()
+    # A caster a hundredth of a unit from a spot light, receivers 100 units away: 16 bits
+    # would step by 200 texels of the nearest ones.
+    deep = dataclasses.replace(light(scene, SPOT_40), near=0.01, far=100.0)
+    assert depth_bits(RenderParams().shadows, deep) == 32
+    cascaded = light(scene, SUN, shadows={"cascades": 2})
+    assert len(cascaded.cascades) == 2 and cascaded.depth_bits == (
+        16 if all(depth16_is_enough(c.near, c.far, c.texel) for c in cascaded.cascades) else 32)

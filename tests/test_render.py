@@ -73,6 +73,35 @@ def test_each_light_type_matches_reference(renderer, demo, light, kind):
     assert metrics[0].false_shadow_pct < 0.1
 
 
+@pytest.mark.parametrize("light", [
+    {"type": "directional", "direction": [-0.6, -1.0, 0.25]},
+    {"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 40},
+    {"type": "point", "position": [-1.5, 2.5, 2.0]},
+])
+def test_sixteen_bit_maps_shadow_like_thirty_two_bit_ones(renderer, demo, light):
+    from OpenGL import GL
+
+    out = {}
+    for bits in (16, 32):
+        params = RenderParams(camera=DEMO_CAMERA, lights=[light],
+                              shadows={"depth_bits": bits, "map_size": 1024})
+        metrics, result, _ = measure(renderer, demo, params)
+        assert result.plan["lights"][0]["depth_bits"] == bits
+        # The map really is a texture of that many bits, and counted at its size.
+        fbs = [fb for fbs in renderer.light_pass.pool.values() for fb in fbs]
+        fbs += [fb for _, fb in renderer.light_pass.cache.values()]
+        fb = next(f for f in fbs if f.width == 1024 and f.depth_texture
+                  and (f.nbytes // (1024 * 1024 * max(f.layers, 1))) == bits // 8)
+        GL.glBindTexture(fb.target, fb.depth_texture)
+        assert GL.glGetTexLevelParameteriv(fb.target, 0, GL.GL_TEXTURE_DEPTH_SIZE) == bits
+        GL.glBindTexture(fb.target, 0)
+        out[bits] = (metrics[0], result.visibility[..., 0])
+    (m16, v16), (m32, v32) = out[16], out[32]
+    assert m16.iou >= 0.95 and abs(m16.iou - m32.iou) <= 0.002, (m16, m32)
+    both = np.isfinite(v16) & np.isfinite(v32)
+    assert np.mean(np.abs(v16[both] - v32[both]) > 0.5) < 5e-4
+
+
 def test_point_light_beside_its_casters_matches_reference(renderer):
     """A low point light whose casters fit in a narrow cone gets one frustum around them
     (plan.fit.caster_cone): the ground outside it, some of it behind the light, is lit."""

@@ -455,13 +455,14 @@ class _FrameState:
             prog.set("u_map2d", [units[self.maps.index(m)] for m in two_d])
             prog.set("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d])
             prog.set("u_map2d_range",
-                     [(m.plan.near, m.plan.far, 0.0, m.plan.map_size) for m in two_d])
+                     [(m.plan.near, m.plan.far, m.step, m.plan.map_size) for m in two_d])
             prog.set("u_map2d_texel", [m.plan.texel for m in two_d])
             prog.set("u_map2d_axes", [_texel_axes(m.plan.proj) for m in two_d])
         if cubes:
             prog.set("u_mapcube", [units[self.maps.index(m)] for m in cubes])
             prog.set("u_mapcube_position", [m.plan.position for m in cubes])
-            prog.set("u_mapcube_range", [(m.plan.near, m.plan.far, m.plan.map_size) for m in cubes])
+            prog.set("u_mapcube_range",
+                     [(m.plan.near, m.plan.far, m.plan.map_size, m.step) for m in cubes])
 
     def _set_cascade_uniforms(self, prog: Program, units: list[int],
                               cascaded: list[ShadowMap]) -> None:
@@ -473,7 +474,7 @@ class _FrameState:
         n = len(cascaded) * MAX_CASCADES
         matrix = np.tile(np.eye(4), (n, 1, 1))
         view = np.tile(np.eye(4), (n, 1, 1))
-        rng = np.tile([0.0, 1.0], (n, 1))
+        rng = np.tile([0.0, 1.0, 0.0], (n, 1))
         texel = np.ones(n)
         axes = np.ones((n, 2))
         split = np.zeros((n, 2))
@@ -482,7 +483,7 @@ class _FrameState:
                 j = s * MAX_CASCADES + k
                 matrix[j] = BIAS @ c.proj @ c.view
                 view[j] = c.view
-                rng[j] = (c.near, c.far)
+                rng[j] = (c.near, c.far, m.step)
                 texel[j] = c.texel[0]
                 axes[j] = _texel_axes(c.proj)
                 split[j] = (min(c.split[1], 3e38), c.blend)

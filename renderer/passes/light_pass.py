@@ -2,8 +2,9 @@
 
 One FBO per map, from a small pool reused across renders. Colour encodings render the packed depth
 into an RGBA8 texture with a float depth renderbuffer for the depth test; the ``depth`` encoding
-renders into a ``GL_DEPTH_COMPONENT32F`` texture, which the camera pass reads as plain depths
-(``textureGather``) to compare each texel on its own (``shaders/chunks/shadow_lookup.glsl``).
+renders into a depth texture of the plan's ``depth_bits`` (``GL_DEPTH_COMPONENT16`` or
+``GL_DEPTH_COMPONENT32F``), which the camera pass reads as plain depths (``textureGather``) to
+compare each texel on its own (``shaders/chunks/shadow_lookup.glsl``).
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ from ..gl.programs import ProgramCache
 from ..gl.resources import Framebuffer, GpuScene
 from ..params import ShadowParams
 from ..plan import LightShadow
+from ..plan.fit import DEPTH16_STEP
+
+#: Internal format of a depth-encoded map by its plan's ``depth_bits``.
+DEPTH_FORMATS = {16: GL.GL_DEPTH_COMPONENT16, 32: GL.GL_DEPTH_COMPONENT32F}
 
 
 @dataclass(eq=False)
@@ -38,6 +43,14 @@ class ShadowMap:
     @property
     def target(self) -> int:
         return self.fbo.target
+
+    @property
+    def step(self) -> float:
+        """One step of the stored depth t (the unit of the quantisation bias and of the polygon
+        offset): the encoding's, or a 16-bit depth texture's 1/65535."""
+        if self.encoding == "depth" and self.plan.depth_bits == 16:
+            return DEPTH16_STEP
+        return encodings.STEP[self.encoding]
 
     def read_depth(self) -> np.ndarray:
         """Decoded linear depth, NaN where nothing was drawn.
@@ -86,7 +99,7 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
         return ""
     parts: list[bytes] = [scene_key.encode(), np.asarray(origin, np.float64).tobytes(),
                           repr((shadows.encoding, shadows.bias.polygon_offset,
-                                lp.kind, len(lp.cascades))).encode()]
+                                lp.kind, len(lp.cascades), lp.depth_bits)).encode()]
     for m in lp.maps:
         parts += [m.view.tobytes(), m.proj.tobytes(), *(v.tobytes() for v in m.face_views),
                   repr((m.near, m.far, m.map_size, list(m.faces))).encode(),
@@ -95,7 +108,8 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
 
 
 class LightPass:
-    """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, layers)
+    """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, layers,
+    depth bits)
     and a cache of drawn maps by :func:`map_key`.
 
     Parameters
@@ -145,13 +159,13 @@ class LightPass:
         self._trim(self._taken)
 
     def _framebuffer(self, key: tuple, taken: set[int]) -> Framebuffer:
-        kind, size, encoding, layers = key
+        kind, size, encoding, layers, bits = key
         for fb in self.pool.get(key, []):
             if id(fb) not in taken:
                 return fb
         cube = kind == "cube"
         if encoding == "depth":
-            fb = Framebuffer(size, size, [], (GL.GL_DEPTH_COMPONENT32F, True), cube=cube,
+            fb = Framebuffer(size, size, [], (DEPTH_FORMATS[bits], True), cube=cube,
                              layers=layers)
         elif layers:
             # Each layer needs its own depth test: a layered depth texture, not a renderbuffer.
@@ -209,7 +223,7 @@ class LightPass:
                 taken.add(id(hit[1]))
                 maps.append(ShadowMap(lp, hit[1], shadows.encoding, cached=True))
                 continue
-            pool_key = (lp.kind, size, shadows.encoding, layers)
+            pool_key = (lp.kind, size, shadows.encoding, layers, lp.depth_bits)
             fb = self._framebuffer(pool_key, taken)
             taken.add(id(fb))
             # (target, plan, view): every cube face, every cascade's layer, or the one map.
@@ -221,6 +235,7 @@ class LightPass:
             else:
                 targets = [(None, lp, lp.view)]
             groups = gpu.groups(lp.casters)  # once per light, for every face
+            step = ShadowMap(lp, fb, shadows.encoding).step
             for where, part, view in targets:
                 if where is None:
                     fb.bind()
@@ -232,9 +247,10 @@ class LightPass:
                 GL.glClearDepth(1.0)
                 GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
                 if part is not lp:  # a cascade draws its own casters
-                    self._draw_casters(gpu, gpu.groups(part.casters), part, view, shadows)
+                    self._draw_casters(gpu, gpu.groups(part.casters), part, view, shadows,
+                                       step)
                 else:
-                    self._draw_casters(gpu, groups, part, view, shadows)
+                    self._draw_casters(gpu, groups, part, view, shadows, step)
             maps.append(ShadowMap(lp, fb, shadows.encoding))
             if key and self.cache.put(key, (pool_key, fb)):
                 self.pool[pool_key].remove(fb)  # the cache owns it now
@@ -244,8 +260,11 @@ class LightPass:
         return maps
 
     def _draw_casters(self, gpu: GpuScene, groups: list[tuple[int, int, np.ndarray]],
-                      lp: LightShadow, view: np.ndarray, shadows: ShadowParams) -> None:
-        """Draw the casters, one draw per GPU primitive (:meth:`GpuScene.groups`)."""
+                      lp: LightShadow, view: np.ndarray, shadows: ShadowParams,
+                      step: float) -> None:
+        """Draw the casters, one draw per GPU primitive (:meth:`GpuScene.groups`); ``step``:
+        one step of the map's stored depth (:attr:`ShadowMap.step`), the polygon offset's
+        unit."""
         perspective = lp.kind != "ortho"
         po_factor, po_units = shadows.bias.polygon_offset
         polygon_offset = bool(po_factor or po_units)
@@ -274,7 +293,7 @@ class LightPass:
                 # (an orthographic depth-texture map stores the window depth as it is)
                 prog.set("u_depth_range", (lp.near, lp.far))
             if polygon_offset:
-                prog.set("u_polygon_offset", (po_factor, po_units))
+                prog.set("u_polygon_offset", (po_factor, po_units * step))
             if texture is not None and cutoff is not None:
                 GL.glActiveTexture(GL.GL_TEXTURE0)
                 texture.bind_alpha()

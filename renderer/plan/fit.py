@@ -48,6 +48,15 @@ if TYPE_CHECKING:  # the lights import this package's geometry: types only, no i
 # would spend most of its texels near the frustum's edges.
 MAX_SPOT_HALF_ANGLE = math.radians(60.0)
 
+#: A 16-bit depth texture is used (``shadows.depth_bits: "auto"``) when one of its steps, a
+#: 65535th of the map's depth range, is at most this many of the map's texels nearest the light
+#: (the unit of the constant bias): the default quantisation bias of 1.5 steps then adds under a
+#: fifth of a texel to the bias. Half the bytes per texel make every lookup cheaper on a software
+#: rasterizer, where the map's reads go through the CPU's caches (bench/results/floor.md).
+DEPTH16_MAX_STEP_TEXELS = 0.125
+#: The step of a 16-bit UNORM depth texture, in units of the stored depth t in [0, 1].
+DEPTH16_STEP = 1.0 / 65535.0
+
 
 @dataclass(frozen=True)
 class Skip:
@@ -118,6 +127,24 @@ class Fit:
     faces: list[int] = field(default_factory=list)
     face_views: list[np.ndarray] = field(default_factory=list)
     needed: float = 0.0  # texels per side 'auto' would want, before max_map_size
+
+
+def depth16_is_enough(near: float, far: float, texel: tuple[float, float]) -> bool:
+    """Whether a map's depth range fits 16 bits (:data:`DEPTH16_MAX_STEP_TEXELS`).
+
+    Parameters
+    ----------
+    near, far : float
+        The stored depth's range (world units along the light's axis; Chebyshev distance for
+        cube maps).
+    texel : (float, float)
+        A texel's world size at light depth d is ``texel[0] + texel[1] * d``
+        (:attr:`Fit.texel`): the same everywhere in an orthographic map, smallest at ``near``
+        in a perspective or cube one.
+    """
+    finest = texel[0] + texel[1] * max(near, 0.0)
+    step = (far - near) * DEPTH16_STEP
+    return bool(finest > 0 and step <= DEPTH16_MAX_STEP_TEXELS * finest)
 
 
 R = TypeVar("R", bound=Reach)

@@ -24,7 +24,7 @@ import numpy as np
 from .cascades import CascadeFit, plan_cascades
 from .context import PlanContext, Toward
 from .culling import select_casters
-from .fit import Fit, Skip, Subject, choose_method
+from .fit import Fit, Skip, Subject, choose_method, depth16_is_enough
 from .shadow_region import (
     MAX_SPLIT_RECEIVERS,
     MIN_REGION_PIXELS,
@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # the camera and lights import this package: types only, no i
     from ..cache import BoundedCache
     from ..camera import Camera
     from ..lights import Light
-    from ..params import RenderParams
+    from ..params import RenderParams, ShadowParams
     from ..scene import Scene
 
 
@@ -90,6 +90,10 @@ class LightShadow:
         Camera pixels one texel of this cascade covers at its near end (0: not a cascade).
     needed : float
         Spot maps: the texels per side its most demanding seen receiver wants (0: not known).
+    depth_bits : int
+        Bits of the light's depth texture (every cascade's: one array texture) with the
+        ``depth`` encoding, 16 or 32 (:func:`depth_bits`); 0 for the byte encodings and without
+        a pass.
     """
 
     index: int
@@ -113,6 +117,7 @@ class LightShadow:
     blend: float = 0.0
     texel_pixels: float = 0.0
     needed: float = 0.0
+    depth_bits: int = 0
 
     @property
     def maps(self) -> tuple[LightShadow, ...]:
@@ -154,6 +159,8 @@ class LightShadow:
             near=self.near,
             far=self.far,
         )
+        if self.depth_bits:
+            d["depth_bits"] = self.depth_bits
         if self.kind == "cube":
             d["faces"] = list(self.faces)
         if self.cascades:
@@ -389,8 +396,22 @@ def _cascade(ctx: PlanContext, planned: list[LightShadow]) -> list[LightShadow]:
         single = Fit(kind="ortho", view=lp.view, proj=lp.proj, near=lp.near, far=lp.far,
                      map_size=lp.map_size, texel=lp.texel)
         fits = plan_cascades(ctx, lp.light, lp.position, single)
-        out.append(LightShadow.cascaded(lp.index, lp.light, lp.position, fits) if fits else lp)
+        if fits:
+            lp = LightShadow.cascaded(lp.index, lp.light, lp.position, fits)
+            lp = dataclasses.replace(lp, depth_bits=depth_bits(ctx.params.shadows, lp))
+        out.append(lp)
     return out
+
+
+def depth_bits(shadows: ShadowParams, lp: LightShadow) -> int:
+    """Bits of a light's depth texture: ``shadows.depth_bits``, or with ``"auto"`` 16 where
+    every map of the light fits them (:func:`~.fit.depth16_is_enough`), else 32; 0 for the byte
+    encodings (their colour texture is RGBA8) and for a light without a pass."""
+    if shadows.encoding != "depth" or lp.kind is None:
+        return 0
+    if shadows.depth_bits != "auto":
+        return int(shadows.depth_bits)
+    return 16 if all(depth16_is_enough(m.near, m.far, m.texel) for m in lp.maps) else 32
 
 
 def plan_light(ctx: PlanContext, index: int, light: Light) -> LightShadow:
@@ -404,7 +425,8 @@ def plan_light(ctx: PlanContext, index: int, light: Light) -> LightShadow:
     if isinstance(outcome, Skip):
         return LightShadow(index=index, light=light, position=position, reason=outcome.reason)
     fit, casters, skipped = outcome
-    return LightShadow.fitted(index, light, position, fit, casters, skipped)
+    lp = LightShadow.fitted(index, light, position, fit, casters, skipped)
+    return dataclasses.replace(lp, depth_bits=depth_bits(ctx.params.shadows, lp))
 
 
 def _shadow(ctx: PlanContext, s: Subject) -> tuple[Fit, list[int], dict[str, int]] | Skip:

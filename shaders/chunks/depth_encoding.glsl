@@ -6,27 +6,20 @@
 //           10 t (the range is normalised per scene instead of the fixed [-10, 10]).
 // ENC_RGB8  24 bits in RGB, least significant byte in R (packDepth888, packed-depth blog).
 // ENC_RGBA8 32 bits in RGBA, most significant byte in R (WebGL guide, Shadow_highp.js).
-// ENC_DEPTH a 32-bit float depth texture compared in hardware (OpenGL guide).
+// ENC_DEPTH a depth texture (16-bit or 32-bit float, the plan's depth_bits), read as plain
+//           depths (OpenGL guide; the compare is chunks/shadow_lookup.glsl's).
 //
-// The ids (ENC_*) and steps (ENC_STEP_*) come from Python (renderer/shader_constants.py, CPU
+// The ids (ENC_*) come from Python (renderer/shader_constants.py, CPU
 // mirror in renderer/encodings.py); the including stage declares ENCODING.
 //
 // The byte packings are exact: scaling by powers of two and fract() lose no bits in float32,
 // each channel keeps one byte (the guide's bit mask), and bytes are written as byte/255 so that
 // the UNORM8 store rounds back to the same byte.
 
-// One step of the stored depth: the unit of the quantisation bias and of the polygon offset.
-#if ENCODING == ENC_R8
-const float ENC_STEP = ENC_STEP_R8;
-#elif ENCODING == ENC_RG8
-const float ENC_STEP = ENC_STEP_RG8;
-#elif ENCODING == ENC_RGB8
-const float ENC_STEP = ENC_STEP_RGB8;
-#elif ENCODING == ENC_RGBA8
-const float ENC_STEP = ENC_STEP_RGBA8;
-#elif ENCODING == ENC_DEPTH
-const float ENC_STEP = ENC_STEP_DEPTH;
-#else
+// One step of the stored depth (the unit of the quantisation bias and of the polygon offset)
+// is each map's own, a uniform from Python (ShadowMap.step): a depth texture has 16 or 32 bits
+// as its plan chose.
+#if ENCODING != ENC_R8 && ENCODING != ENC_RG8 && ENCODING != ENC_RGB8 && ENCODING != ENC_RGBA8 && ENCODING != ENC_DEPTH
 #error ENCODING is none of the ENC_* ids
 #endif
 

@@ -55,7 +55,7 @@ float light_attenuation(int i, vec3 p, out vec3 l) {
 
 #if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0 || NUM_MAPS_CSM > 0
 uniform vec4 u_bias;         // constant, slope, slope max, normal offset (texels)
-uniform float u_bias_steps;  // quantisation bias in steps of the encoding
+uniform float u_bias_steps;  // quantisation bias in steps of the stored depth (each map its own)
 // PLANE_SLOPE_MAX (injected): the steepest receiver plane (tan of its angle to the light) the
 // per-texel comparison follows, that of the most grazing surface that still counts as facing the
 // light; the bias's own slope term stops at slope_max. A plane compared at each texel's centre

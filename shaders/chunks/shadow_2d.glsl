@@ -9,7 +9,7 @@
 in vec4 v_map2d[NUM_MAPS_2D];              // u_map2d_matrix x world, from camera_pass.vert
 uniform MAP2D u_map2d[NUM_MAPS_2D];
 uniform mat4 u_map2d_matrix[NUM_MAPS_2D];  // world -> biased light clip (normal offset)
-uniform vec4 u_map2d_range[NUM_MAPS_2D];   // near, far, unused, map size
+uniform vec4 u_map2d_range[NUM_MAPS_2D];   // near, far, one step of the stored depth, map size
 // World size of a texel at light depth d: x + y * d (orthographic: y = 0; perspective: x = 0).
 uniform vec2 u_map2d_texel[NUM_MAPS_2D];
 // A texel along the map's x and y axes over that size (< 1 along the shorter side of an oblong fit).
@@ -79,7 +79,7 @@ float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp,
                           PLANE_SLOPE_MAX);
     tan_axes = mix(tan_axes, vec2(0.0), isnan(tan_axes));
     Plane pl;
-    pl.ref = t - bias_world(texel, length(tan_axes)) / span - u_bias_steps * ENC_STEP;
+    pl.ref = t - bias_world(texel, length(tan_axes)) / span - u_bias_steps * range.z;
     pl.slope = tan_axes * u_map2d_axes[m] * (texel / span);
     pl.persp = persp ? -pl.slope * span / c.w : vec2(0.0);
     return shadow_2d(map, uv, pl, size);

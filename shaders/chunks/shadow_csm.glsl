@@ -11,7 +11,7 @@
 uniform MAPARRAY u_mapcsm[NUM_MAPS_CSM];
 uniform mat4 u_csm_matrix[NUM_MAPS_CSM * MAX_CASCADES];  // world -> biased light clip
 uniform mat4 u_csm_view[NUM_MAPS_CSM * MAX_CASCADES];    // world -> light view (receiver plane)
-uniform vec2 u_csm_range[NUM_MAPS_CSM * MAX_CASCADES];   // near, far of the stored depth
+uniform vec3 u_csm_range[NUM_MAPS_CSM * MAX_CASCADES];   // near, far, one step of the stored depth
 uniform float u_csm_texel[NUM_MAPS_CSM * MAX_CASCADES];  // world size of one texel (larger side)
 uniform vec2 u_csm_axes[NUM_MAPS_CSM * MAX_CASCADES];    // a texel along x and y over that size
 // Camera distances along the view axis: where each cascade ends, and the band before that
@@ -32,11 +32,11 @@ float visibility_layer(MAPARRAY map, int j, float layer, float size, vec3 p, vec
     vec4 c = u_csm_matrix[j] * vec4(q, 1.0);
     vec2 uv = c.xy;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    vec2 range = u_csm_range[j];
+    vec3 range = u_csm_range[j];
     float span = range.y - range.x;
     vec3 nl = mat3(u_csm_view[j]) * ng;
     Plane pl;
-    pl.ref = c.z - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+    pl.ref = c.z - bias_world(texel, tan_l) / span - u_bias_steps * range.z;
     pl.slope = clamp(nl.xy / max(nl.z, 1e-6), -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_csm_axes[j]
         * (texel / span);
     pl.persp = vec2(0.0);  // orthographic

@@ -9,7 +9,7 @@
 #if NUM_MAPS_CUBE > 0
 uniform MAPCUBE u_mapcube[NUM_MAPS_CUBE];
 uniform vec3 u_mapcube_position[NUM_MAPS_CUBE];
-uniform vec3 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size
+uniform vec4 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size, one step of the stored depth
 
 // The shadow lookup in cube map m, one case per slot (see visibility_2d in chunks/shadow_2d.glsl):
 // constant sampler-array indices only.
@@ -18,7 +18,7 @@ uniform vec3 u_mapcube_range[NUM_MAPS_CUBE];  // near, far, map size
 
 // Shadow of the receiver at p in cube map m.
 float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
-    vec3 range = u_mapcube_range[m];
+    vec4 range = u_mapcube_range[m];
     vec3 d = p - u_mapcube_position[m];
     vec3 a = abs(d);
     float depth = max(a.x, max(a.y, a.z));
@@ -41,7 +41,7 @@ float visibility_cube(int m, vec3 p, vec3 ng, float cos_l, float tan_l) {
     // Plane's divisor.
     vec2 slope = -depth * vec2(dot(ng, s_axis), dot(ng, t_axis)) / min(dot(ng, d), -1e-30);
     Plane pl;
-    pl.ref = t - bias_world(texel, tan_l) / span - u_bias_steps * ENC_STEP;
+    pl.ref = t - bias_world(texel, tan_l) / span - u_bias_steps * range.w;
     pl.slope = clamp(slope, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * (texel / span);
     pl.persp = -pl.slope * span / depth;
     FOR_EACH_SLOT(MAPCUBE_CASE)
