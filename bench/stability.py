@@ -1,9 +1,11 @@
 """Stiff and extreme cases for every depth encoding: IoU and acne against the ray-traced reference.
 
 The same cases as tests/test_stability.py, run for all five encodings (the tests assert on the
-default only), plus the large scenes of tests/test_cascades.py (terrain to the horizon, a small
-box on a 10,000-unit plane, a city grid from street level; at the origin and 1e6 away) scored
-by their worst band of camera distance. Printed as a Markdown table and written to
+default only) and for the ``depth`` encoding held to 32 bits (``depth_bits: 32``; the ``depth``
+column is ``auto``, which picks 16 bits where the map's depth range allows; each case's name
+says what it picked), plus the large scenes of tests/test_cascades.py (terrain to the horizon,
+a small box on a 10,000-unit plane, a city grid from street level; at the origin and 1e6 away)
+scored by their worst band of camera distance. Printed as a Markdown table and written to
 bench/results/stability.md.
 
     python bench/stability.py [--quick]
@@ -24,6 +26,10 @@ from shadowmap.renderer import testing as T
 from shadowmap.renderer.params import ENCODINGS
 
 RESULTS = Path(__file__).resolve().parent / "results"
+#: The table's columns: every encoding (``depth`` with ``depth_bits: auto``), and ``depth`` at
+#: 32 bits.
+COLUMNS = {**{enc: {"encoding": enc} for enc in ENCODINGS},
+           "depth, 32-bit": {"encoding": "depth", "depth_bits": 32}}
 CAMERA = {"eye": [4.0, 4.0, 6.0], "target": [0.0, 0.5, 0.0]}
 
 
@@ -113,8 +119,9 @@ def main(argv: list[str] | None = None) -> int:
         todo = cases(args.quick)
         for k, (name, scene, params, criterion) in enumerate(todo):
             cells = []
-            for enc in ENCODINGS:
-                p = RenderParams(**params, shadows={"encoding": enc})
+            bits = []
+            for enc, shadows in COLUMNS.items():
+                p = RenderParams(**params, shadows=shadows)
                 meas = T.measure(r, scene, p)
                 m = meas.metrics[0]
                 iou = m.iou
@@ -123,11 +130,13 @@ def main(argv: list[str] | None = None) -> int:
                                                             meas.reference, criterion))
                 ok = m.false_shadow_pct <= 0.1 if criterion == "acne" else iou >= 0.95
                 cells.append((iou, m.false_shadow_pct, ok))
-            rows.append((name, criterion, cells))
+                if enc == "depth":
+                    bits = [lp.get("depth_bits") for lp in meas.result.plan["lights"]]
+            rows.append((name + f" ({'/'.join(map(str, bits))}-bit)", criterion, cells))
             print(f"\r{k + 1}/{len(todo)} {name:40s}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
-    head = "| case | criterion | " + " | ".join(ENCODINGS) + " |"
-    lines = [head, "| :--- | :--- |" + " ---: |" * len(ENCODINGS)]
+    head = "| case (depth bits auto chose) | criterion | " + " | ".join(COLUMNS) + " |"
+    lines = [head, "| :--- | :--- |" + " ---: |" * len(COLUMNS)]
     for name, criterion, cells in rows:
         shown = []
         for iou, acne, ok in cells:
