@@ -4,6 +4,8 @@ Per scene, at 640x480 with default settings, frames interleaved:
 
 - **ours**: ``Renderer.render`` of the scene with its lights casting shadows (the colour output,
   read back), wall time, every frame drawing its light pass (the light-map cache emptied first);
+- **ours, 32-bit maps**: the same with ``shadows.depth_bits: 32`` (what ``auto``'s 16-bit maps
+  save);
 - **ours unshadowed**: the same with ``cast_shadows: false``;
 - **floor** (the target's): the GL work alone, with nothing else in the way: per map our plan
   renders (each cascade, each cube face), one depth-only draw through plain PyOpenGL of exactly
@@ -424,6 +426,7 @@ def run(quick: bool, repeats: int) -> None:
         for bs in bench_scenes:
             p_sh = bs.params()
             p_un = bs.params(lights=C.without_shadows(bs.lights))
+            p_32 = bs.params(shadows={"depth_bits": 32})  # the maps of 32 bits, as before 16
             plan = plan_for(r, bs.scene, p_sh)
             floor = Floor(bs.scene, plan)
             shading = ShadingReplay(r, bs.scene, p_un)
@@ -438,6 +441,7 @@ def run(quick: bool, repeats: int) -> None:
                 # is emptied first (its framebuffers go back to the pool, nothing is freed).
                 t = C.time_interleaved({
                     "ours": lambda bs=bs, p=p_sh: fresh_maps(r).render(bs.scene, p),
+                    "ours32": lambda bs=bs, p=p_32: fresh_maps(r).render(bs.scene, p),
                     "unshadowed": lambda bs=bs, p=p_un: r.render(bs.scene, p),
                     "floor": floor.timed,
                     "floor_ours": floor_ours,
@@ -446,10 +450,13 @@ def run(quick: bool, repeats: int) -> None:
                 floor.release()
             share = python_share(lambda bs=bs, p=p_sh: fresh_maps(r).render(bs.scene, p))
             ours, un, fl = t["ours"].ms(), t["unshadowed"].ms(), t["floor"].ms()
+            ours32 = t["ours32"].ms()
+            bits = "/".join(str(lp.depth_bits) for lp in plan.lights if lp.depth_bits) or "—"
             fo = t["floor_ours"].ms()
             py_ms = share * ours
             ratio = ours / fo
-            rows.append([bs.name, C.fmt(ours, 2), C.fmt(un, 2), C.fmt(fo, 2),
+            rows.append([bs.name, bits, C.fmt(ours, 2), C.fmt(ours32, 2), C.fmt(un, 2),
+                         C.fmt(fo, 2),
                          C.fmt(ratio, 2) + ("" if ratio <= TARGET_RATIO else " ✗"),
                          C.fmt(fl, 2), C.fmt(ours / fl, 2),
                          C.fmt(py_ms, 2), C.fmt(t["ours"].ms("plan"), 2)])
@@ -457,7 +464,8 @@ def run(quick: bool, repeats: int) -> None:
                 "scene": bs.name, "triangles": bs.scene.triangle_count,
                 "instances": len(bs.scene.instances), "maps": len(floor.maps),
                 "map_size": max((m[0] for m in floor.maps), default=0),
-                "ours_ms": round(ours, 3), "ours_unshadowed_ms": round(un, 3),
+                "depth_bits": bits, "ours_ms": round(ours, 3),
+                "ours_32bit_ms": round(ours32, 3), "ours_unshadowed_ms": round(un, 3),
                 "floor_ms": round(fo, 3), "ratio": round(ratio, 4),
                 "lambert_floor_ms": round(fl, 3), "lambert_ratio": round(ours / fl, 4),
                 "python_ms": round(py_ms, 3), "python_share": round(share, 4),
@@ -487,7 +495,8 @@ def run(quick: bool, repeats: int) -> None:
     ratios = [c["ratio"] for c in csv_rows]
     gmean = float(np.exp(np.mean(np.log(ratios))))
     gmean_lambert = float(np.exp(np.mean(np.log([c["lambert_ratio"] for c in csv_rows]))))
-    headers = ["scene", "ours ms", "ours unshadowed ms", "floor ms", "ours / floor",
+    headers = ["scene", "depth bits", "ours ms", "ours, 32-bit maps ms", "ours unshadowed ms",
+               "floor ms", "ours / floor",
                "Lambert floor ms", "ours / Lambert floor", "Python ms", "plan ms"]
     table = C.markdown_table(headers, rows)
     over = [c["scene"] for c in csv_rows if c["ratio"] > TARGET_RATIO]
@@ -516,10 +525,13 @@ def run(quick: bool, repeats: int) -> None:
         "# The floor: our shadowed frame against the rasterizer's own cost",
         "",
         "640x480, default settings (`RenderParams()`), colour output read back. Median wall "
-        f"time of {repeats} calls after two warm-ups, the three interleaved; each of our "
-        "shadowed frames draws its light pass (the light-map cache emptied first). The floor is "
+        f"time of {repeats} calls after two warm-ups, all interleaved; each of our "
+        "shadowed frames draws its light pass (the light-map cache emptied first). Depth bits: "
+        "what `depth_bits: auto` chose per map; *ours, 32-bit maps*: the same frame with "
+        "`depth_bits: 32`. The floor is "
         "the GL work alone: one depth-only draw of the plan's casters per map through plain "
-        "PyOpenGL (same sizes, same cascades and cube faces), then our own camera pass without "
+        "PyOpenGL (same sizes and depth formats, same cascades and cube faces), then our own "
+        "camera pass without "
         "any shadow code (the unshadowed variant, same lights, textures and shading) and its "
         "`glReadPixels`, replayed as the GL calls one render made, with nothing between them. "
         "The Lambert floor draws one untextured Lambert pass of the visible instances through "
