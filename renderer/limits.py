@@ -188,11 +188,15 @@ def check_lights(count: int, limits: Limits) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def map_texel_bytes(encoding: str) -> int:
-    """GPU bytes per shadow-map texel: the ``depth`` encoding renders into one
-    ``DEPTH_COMPONENT32F`` texture, the colour encodings into an RGBA8 texture plus a
-    ``DEPTH_COMPONENT32F`` renderbuffer for the depth test (``passes/light_pass.py``)."""
-    return 4 if CHANNELS[encoding] == 0 else 4 + 4
+def map_texel_bytes(encoding: str, depth_bits: int | str = "auto") -> int:
+    """GPU bytes per shadow-map texel: the ``depth`` encoding renders into one depth texture,
+    ``DEPTH_COMPONENT16`` with ``depth_bits: 16`` and ``DEPTH_COMPONENT32F`` otherwise (the
+    estimate comes before the plan, so ``"auto"`` counts the larger), the colour encodings into
+    an RGBA8 texture plus a ``DEPTH_COMPONENT32F`` renderbuffer for the depth test
+    (``passes/light_pass.py``)."""
+    if CHANNELS[encoding] == 0:
+        return 2 if depth_bits == 16 else 4
+    return 4 + 4
 
 
 #: ``light_depth`` read-back bytes per texel of every map: the float32 depths and the uint8
@@ -318,7 +322,7 @@ def request_bytes(params: RenderParams, lights: Sequence[tuple[str, bool]], map_
         The parts; ``.total`` is what :func:`fit_request` holds to ``max_request_bytes``.
         Every map is counted at full size, whether or not the plan draws it.
     """
-    texel = map_texel_bytes(params.shadows.encoding)
+    texel = map_texel_bytes(params.shadows.encoding, params.shadows.depth_bits)
     shadows = params.shadows
     cascades = shadows.cascades if shadows.cascades != "auto" else shadows.max_cascades
     cubes = sum(1 for kind, casts in lights if casts and kind == "point")

@@ -475,7 +475,11 @@ def test_request_bytes_counts_faces_cascades_encodings_and_outputs():
 
     spot = [{"type": "spot", "position": [0, 1, 0], "direction": [0, -1, 0]}]
     one = total(lights=spot)
-    assert one.maps == 1024**2 * 4  # the depth encoding: a DEPTH_COMPONENT32F texture
+    # The depth encoding: a DEPTH_COMPONENT32F texture at most ('auto' may pick either), 16 bits
+    # when asked for.
+    assert one.maps == 1024**2 * 4
+    assert total(lights=spot, shadows={"depth_bits": 16}).maps == 1024**2 * 2
+    assert total(lights=spot, shadows={"depth_bits": 32}).maps == one.maps
     assert total(lights=spot, shadows={"encoding": "rgba8"}).maps == 1024**2 * 8
     assert total(lights=point_lights(2)).maps == 2 * 6 * 1024**2 * 4
     assert total(lights=spot + [{**spot[0], "cast_shadows": False}]).maps == one.maps
