@@ -32,17 +32,20 @@ from .upload import (
     check_content_length,
     parse_params,
     read_limited,
+    scene_kind,
     scene_upload,
 )
 
 FORM_PARTS = ("scene", "params")
 
 
-def get_settings(request: Request) -> Settings:
+# The dependencies are ``async def`` although they do not await: FastAPI runs a plain ``def``
+# dependency in its thread pool, a thread hop per request for an attribute lookup.
+async def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_worker(request: Request) -> Supervisor:
+async def get_worker(request: Request) -> Supervisor:
     worker = getattr(request.app.state, "worker", None)
     if worker is None:
         raise ServiceError(503, "unavailable", "the renderer is not running",
@@ -269,8 +272,12 @@ async def read_render_input(request: Request, settings: SettingsDep) -> RenderIn
             camera = RenderParams.model_validate({"camera": DEMO_PARAMS["camera"]}).camera
             render_params = render_params.model_copy(update={"camera": camera})
     else:
-        # Hashing and unpacking are CPU work: keep them off the event loop.
-        upload = await run_in_threadpool(scene_upload, scene[0], scene[1], settings, scene[2])
+        if scene_kind(*scene) == "zip":
+            # Unpacking is CPU work: kept off the event loop.
+            upload = await run_in_threadpool(scene_upload, scene[0], scene[1], settings,
+                                             scene[2])
+        else:  # a .glb or .gltf is only classified here (the worker hashes and parses it)
+            upload = scene_upload(scene[0], scene[1], settings, scene[2])
         if render_params is None:
             render_params = RenderParams()
     render_params = with_default_size(render_params, settings)

@@ -125,7 +125,7 @@ def parse_params(text: str | bytes) -> RenderParams:
 # --------------------------------------------------------------------------------------------
 
 
-def _kind(data: bytes, filename: str | None, declared: str | None) -> str:
+def scene_kind(data: bytes, filename: str | None, declared: str | None) -> str:
     """'glb', 'gltf' or 'zip': from the file name, else the media type, else the first bytes."""
     if filename:
         suffix = posixpath.splitext(filename.lower())[1]
@@ -162,7 +162,7 @@ def scene_upload(data: bytes, filename: str | None, settings: Settings,
     """
     if not data:
         raise SceneError("the scene file is empty")
-    kind = _kind(data, filename, declared)
+    kind = scene_kind(data, filename, declared)
     name = filename or f"scene.{kind}"
     if kind != "zip":
         return SceneUpload(data, kind, {}, name)
