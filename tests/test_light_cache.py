@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from shadowmap.renderer import Renderer, RenderParams, RequestError
+from shadowmap.renderer import testing as T
 from shadowmap.renderer.camera import resolve_camera
 from shadowmap.renderer.demo import demo_glb
 from shadowmap.renderer.lights import resolve_lights
@@ -92,6 +93,51 @@ def test_view_fit_follows_the_camera(demo):
     assert not np.array_equal(a.proj, b.proj)
 
 
+SPOT = {"type": "spot", "position": [-2.5, 4.0, 1.5], "target": [0, 0, 0], "outer_cone_deg": 40}
+
+
+def _orbit_fits(scene, light: dict | None = None, n: int = 8) -> list:
+    return [plan_of(scene, {**orbit(k, n, fit="view"),
+                            **({"lights": [light]} if light else {})}).lights[0]
+            for k in range(n)]
+
+
+def _alike(a, b) -> bool:
+    return bool(np.array_equal(a.view, b.view) and np.array_equal(a.proj, b.proj)
+                and (a.near, a.far, a.casters) == (b.near, b.far, b.casters))
+
+
+def test_view_fits_end_at_the_deepest_receiver_under_the_map():
+    # A box on a wide ground, seen from around: every view sees the ground under the box's
+    # shadow, and further ground beyond it at other depths. The map's depth range ends at the
+    # deepest receiver point under the map (a lookup elsewhere finds the point lit), so the
+    # views fit the light alike for each 'auto' size and draw the same map.
+    scene = T.caster_on_ground()
+    fits = _orbit_fits(scene)
+    by_size: dict[int, list] = {}
+    for lp in fits:
+        assert lp.kind == "ortho"
+        by_size.setdefault(lp.map_size, []).append(lp)
+    assert max(len(v) for v in by_size.values()) >= 4
+    for group in by_size.values():
+        assert all(_alike(group[0], lp) for lp in group[1:])
+    # Shallower than the deepest receiver point a view sees: what the map left out is no
+    # receiver it could shadow.
+    p = RenderParams.model_validate(orbit(0, fit="view"))
+    cam = resolve_camera(p.camera, scene, p.width, p.height)
+    lo, hi = scene.bounds
+    from shadowmap.renderer.plan.context import PlanContext
+    from shadowmap.renderer.plan.geometry import transform_points
+
+    ctx = PlanContext.build(scene, cam, (lo + hi) / 2, p)
+    seen = np.concatenate([ctx.corners[ctx.seen.whole].reshape(-1, 3), ctx.seen.points])
+    assert fits[0].far < float(np.max(-transform_points(fits[0].view, seen)[:, 2]))
+    # A spot light's perspective map likewise, where two views see all of its pyramid.
+    spots = _orbit_fits(scene, SPOT)
+    assert all(lp.kind == "perspective" for lp in spots)
+    assert any(_alike(a, b) for i, a in enumerate(spots) for b in spots[i + 1:])
+
+
 def test_scene_fit_covers_receivers_the_camera_does_not_see(demo):
     # A camera close to the floor, looking at one corner: the view fit covers that corner only,
     # the scene fit the whole floor.
@@ -140,6 +186,27 @@ def test_views_share_one_light_pass_and_match_fresh_renders(renderer, demo):
             assert _same(got.visibility, want.visibility)
     assert reports[1:] == ["cached"] * 3
     assert got.plan["light_passes_cached"] == 1
+
+
+@pytest.mark.gl
+def test_views_with_alike_view_fits_share_the_map_and_match_fresh_renders(renderer):
+    # The default fit: views around a box on a wide ground that fit the light alike (above)
+    # draw its map once per 'auto' size, and every view equals a render with no map cache.
+    scene = T.caster_on_ground()
+    reports = []
+    with Renderer(map_cache_bytes=0) as fresh:
+        for k in range(8):
+            renderer.context.make_current()
+            got = renderer.render(scene, orbit(k, fit="view"))
+            reports.append(got.plan["lights"][0]["light_pass"])
+            fresh.context.make_current()
+            want = fresh.render(scene, orbit(k, fit="view"))
+            assert want.plan["lights"][0]["light_pass"] == "drawn"
+            assert _same(got.color, want.color)
+            assert _same(got.visibility, want.visibility)
+        renderer.context.make_current()
+    sizes = {lp.map_size for lp in _orbit_fits(scene)}
+    assert len(sizes) <= 3 and reports.count("cached") >= 8 - len(sizes)
 
 
 @pytest.mark.gl

@@ -208,19 +208,23 @@ def _seen_light_points(ctx: PlanContext, view: np.ndarray) -> np.ndarray:
 def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
                     fit: np.ndarray) -> Fit | Skip:
     """An orthographic box: the window narrowed to the casters' lateral extent, from the nearest
-    caster to the farthest seen receiver point, padded by the filter margin."""
+    caster to the deepest seen receiver point under the window (:func:`_column_far`), padded by
+    the filter margin."""
     x0, y0, x1, y1 = reach.window
     # A directional shadow falls straight along the light: only where casters are, laterally.
     x0, y0 = np.maximum([x0, y0], reach.lo[fit, :2].min(axis=0))
     x1, y1 = np.minimum([x1, y1], reach.hi[fit, :2].max(axis=0))
     if x1 <= x0 or y1 <= y0:
         return Skip("no_caster_in_frustum")
-    near, far = _caster_near(ctx, reach, fit, (x0, x1, y0, y1)), reach.far
+    near = _caster_near(ctx, reach, fit, (x0, x1, y0, y1))
     extent = max(x1 - x0, y1 - y0, 1e-300)
     size = ctx.map_size_for(extent, s.receivers, toward=toward_light(s))
     pad = ctx.margin(extent, size)
     x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
-    # The deepest seen receiver point is the window's exact bound (no box beyond it any more):
+    # Only the receivers under the (padded) window can be shadowed: a lookup anywhere else
+    # finds its point outside the map and lit.
+    far = min(reach.far, _column_far(ctx, reach, s.receivers, (x0, x1, y0, y1)))
+    # The deepest receiver point is the window's exact bound (no box beyond it any more):
     # filter taps read the margin past it in depth too.
     far += pad
     # A little depth slack so that the nearest caster and farthest receiver are not clipped.
@@ -245,19 +249,51 @@ def _caster_near(ctx: PlanContext, reach: DirectionalReach, fit: np.ndarray,
     wide = (lo[:, 0] < x0) | (hi[:, 0] > x1) | (lo[:, 1] < y0) | (hi[:, 1] > y1)
     near = float(reach.depth_min[idx[~wide]].min(initial=np.inf))
     if wide.any():
-        z0 = float(reach.depth_min[idx].min())
-        z1 = max(reach.far, z0) + 1.0 + abs(reach.far)  # the column's depth: past everything
-        z0 -= 1.0 + abs(z0)
-        column = np.array([[x, y, -z] for z in (z0, z1) for x in (x0, x1) for y in (y0, y1)])
-        world = np.linalg.inv(reach.view)
-        hull = column @ world[:3, :3].T + world[:3, 3]
-        planes = frustum_planes(ortho(x0, x1, y0, y1, z0, z1) @ reach.view)
-        scale = float(np.max(np.abs(hull)))
-        pts = clip_boxes(ctx.bounds[idx[wide]], planes, hull, 1e-9 * scale)
-        if len(pts):
-            depth = -(pts @ reach.view[2, :3] + reach.view[2, 3])
+        depth = _column_depths(ctx, reach, idx[wide], window)
+        if len(depth):
             near = min(near, float(depth.min()))
     return near if np.isfinite(near) else float(reach.depth_min[fit].min())
+
+
+def _column_depths(ctx: PlanContext, reach: DirectionalReach, boxes: np.ndarray,
+                   window: tuple[float, float, float, float]) -> np.ndarray:
+    """Light depths (M,) of the vertices of the parts of ``boxes`` (indices) inside the light's
+    column over the window (x0, x1, y0, y1), at any depth (:func:`.geometry.clip_boxes`)."""
+    x0, x1, y0, y1 = window
+    z0 = float(reach.depth_min[boxes].min())
+    z1 = float(np.max(-reach.lo[boxes, 2]))
+    z1 += 1.0 + abs(z1)  # the column's depth: past every box
+    z0 -= 1.0 + abs(z0)
+    column = np.array([[x, y, -z] for z in (z0, z1) for x in (x0, x1) for y in (y0, y1)])
+    world = np.linalg.inv(reach.view)
+    hull = column @ world[:3, :3].T + world[:3, 3]
+    planes = frustum_planes(ortho(x0, x1, y0, y1, z0, z1) @ reach.view)
+    scale = float(np.max(np.abs(hull)))
+    pts = clip_boxes(ctx.bounds[boxes], planes, hull, 1e-9 * scale)
+    return -(pts @ reach.view[2, :3] + reach.view[2, 3])
+
+
+def _column_far(ctx: PlanContext, reach: DirectionalReach, receivers: np.ndarray,
+                window: tuple[float, float, float, float]) -> float:
+    """The deepest light depth of the receivers' boxes over the window's column (x0, x1, y0, y1),
+    inf where none reaches it.
+
+    Only receiver points under the map can be shadowed, and a lookup there must find its depth
+    inside the map's range: this bounds the map's far end as well as the deepest seen point
+    anywhere does (:attr:`Reach.far`), and the two together bound it tighter than either. It
+    does not move with the camera while the column's receivers are all in its view, so views
+    around a scene often fit a light alike and share its map (the light-map cache).
+    """
+    x0, x1, y0, y1 = window
+    lo, hi = reach.lo[receivers], reach.hi[receivers]
+    over = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
+    inside = over & (lo[:, 0] >= x0) & (hi[:, 0] <= x1) & (lo[:, 1] >= y0) & (hi[:, 1] <= y1)
+    far = float(np.max(-lo[inside, 2], initial=-np.inf))
+    straddling = receivers[over & ~inside]
+    if len(straddling):
+        depth = _column_depths(ctx, reach, straddling, window)
+        far = max(far, float(np.max(depth, initial=-np.inf)))
+    return far if np.isfinite(far) else np.inf
 
 
 # --------------------------------------------------------------------------------------------
@@ -311,7 +347,8 @@ def reach_spot(ctx: PlanContext, s: Subject) -> SpotReach | Skip:
 
 def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) -> Fit | Skip:
     """An off-axis frustum: the pyramid narrowed to the casters' slopes, from the nearest caster
-    to the farthest receiver, padded by the filter margin."""
+    to the deepest seen receiver inside the pyramid (:func:`_pyramid_far`), padded by the filter
+    margin."""
     a_lo, a_hi = reach.a_lo, reach.a_hi
     # Shadows lie within the casters' angular extent, when all of them are in front of the light.
     cc = reach.lc[fit].reshape(-1, 3)
@@ -321,14 +358,16 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
         a_hi = np.minimum(a_hi, ang.max(axis=0))
         if np.any(a_hi <= a_lo):
             return Skip("no_caster_in_frustum")
-    far = reach.far * 1.001
-    near = float(max(reach.depth_min[fit].min() * 0.999, far * 1e-5))
+    caster_near = float(reach.depth_min[fit].min() * 0.999)
+    near = max(caster_near, reach.far * 1.001e-5)
     extent = float(max(a_hi[0] - a_lo[0], a_hi[1] - a_lo[1]))
     # Slopes become world sizes at a typical receiver's light depth.
     d_light = float(np.median(reach.depth[s.receivers].mean(axis=1).clip(min=near)))
     size = ctx.map_size_for(extent * d_light, s.receivers, toward=toward_light(s))
     pad = ctx.margin(extent, size)
     a_lo, a_hi = a_lo - pad, a_hi + pad
+    far = min(reach.far, _pyramid_far(ctx, reach, s.receivers, a_lo, a_hi, near)) * 1.001
+    near = max(caster_near, far * 1e-5)
     proj = frustum(a_lo[0] * near, a_hi[0] * near, a_lo[1] * near, a_hi[1] * near, near, far)
     # What the most demanding seen receiver point wants: one texel spans extent / size * its
     # light depth and a pixel pixel_per_distance * its camera distance, and receivers over
@@ -342,6 +381,41 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     needed = extent * ratio / (ctx.pixel_per_distance / AUTO_TEXEL_PIXELS)
     return Fit(kind="perspective", view=reach.view, proj=proj, near=near, far=far, map_size=size,
                texel=(0.0, float(max(a_hi - a_lo)) / size), needed=needed)
+
+
+def _pyramid_far(ctx: PlanContext, reach: SpotReach, receivers: np.ndarray, a_lo: np.ndarray,
+                 a_hi: np.ndarray, near: float) -> float:
+    """The deepest light depth of the receivers' boxes inside the pyramid of slopes
+    [a_lo, a_hi] past ``near``, inf where none reaches it (the spot's :func:`_column_far`)."""
+    lc = reach.lc[receivers]  # (R, 8, 3)
+    depth = reach.depth[receivers]  # (R, 8)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ang = lc[..., :2] / depth[..., None]
+    front = depth > near
+    # Outside when every corner lies beyond one side of the pyramid, or before its near end.
+    out = ~np.any(front, axis=1)
+    for axis in (0, 1):
+        out |= np.all(front & (ang[..., axis] < a_lo[axis]), axis=1) & np.all(front, axis=1)
+        out |= np.all(front & (ang[..., axis] > a_hi[axis]), axis=1) & np.all(front, axis=1)
+    inside = np.all(front & np.all((ang >= a_lo) & (ang <= a_hi), axis=2), axis=1)
+    far = float(np.max(depth[inside].max(axis=1), initial=-np.inf))
+    straddling = receivers[~out & ~inside]
+    if len(straddling):
+        z0 = near
+        z1 = float(reach.depth[straddling].max())
+        z1 += 1.0 + abs(z1)  # past every box
+        if z1 > z0:
+            hull_view = np.array([[x * z, y * z, -z] for z in (z0, z1)
+                                  for x in (a_lo[0], a_hi[0]) for y in (a_lo[1], a_hi[1])])
+            world = np.linalg.inv(reach.view)
+            hull = hull_view @ world[:3, :3].T + world[:3, 3]
+            planes = frustum_planes(frustum(a_lo[0] * z0, a_hi[0] * z0, a_lo[1] * z0,
+                                            a_hi[1] * z0, z0, z1) @ reach.view)
+            scale = float(np.max(np.abs(hull)))
+            pts = clip_boxes(ctx.bounds[straddling], planes, hull, 1e-9 * scale)
+            if len(pts):
+                far = max(far, float(np.max(-(pts @ reach.view[2, :3] + reach.view[2, 3]))))
+    return far if np.isfinite(far) else np.inf
 
 
 # --------------------------------------------------------------------------------------------
