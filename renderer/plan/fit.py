@@ -285,11 +285,16 @@ def _column_far(ctx: PlanContext, reach: DirectionalReach, receivers: np.ndarray
     around a scene often fit a light alike and share its map (the light-map cache).
     """
     x0, x1, y0, y1 = window
-    lo, hi = reach.lo[receivers], reach.hi[receivers]
-    over = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
-    inside = over & (lo[:, 0] >= x0) & (hi[:, 0] <= x1) & (lo[:, 1] >= y0) & (hi[:, 1] <= y1)
-    far = float(np.max(-lo[inside, 2], initial=-np.inf))
-    straddling = receivers[over & ~inside]
+    # Columns gathered first: comparisons on contiguous rows (a column of an (N, 3) array is
+    # strided, and slower to compare at 10,000 instances than the gather).
+    lx, ly, lz = (reach.lo[:, k][receivers] for k in range(3))
+    hx, hy = (reach.hi[:, k][receivers] for k in range(2))
+    over = (hx >= x0) & (lx <= x1) & (hy >= y0) & (ly <= y1)
+    inside = over & (lx >= x0) & (hx <= x1) & (ly >= y0) & (hy <= y1)
+    deepest = -lz  # each box's deepest point (its light-view box's far side)
+    far = float(np.max(deepest[inside], initial=-np.inf))
+    # Only a box reaching deeper than those can move the bound: clip just those.
+    straddling = receivers[over & ~inside & (deepest > far)]
     if len(straddling):
         depth = _column_depths(ctx, reach, straddling, window)
         far = max(far, float(np.max(depth, initial=-np.inf)))
