@@ -732,3 +732,75 @@ def test_depth_bits_follow_the_setting_the_encoding_and_the_fit():
     cascaded = light(scene, SUN, shadows={"cascades": 2})
     assert len(cascaded.cascades) == 2 and cascaded.depth_bits == (
         16 if all(depth16_is_enough(c.near, c.far, c.texel) for c in cascaded.cascades) else 32)
+
+
+# -- the far end of a view-fitted map: the deepest receiver point under it ----------------------
+
+
+def _deepest_by_lp(ctx: PlanContext, boxes: np.ndarray, planes: np.ndarray,
+                   view: np.ndarray) -> float:
+    """max light depth over the parts of ``boxes`` inside ``planes`` (world), by linear
+    programming box by box (-inf when none reaches inside)."""
+    return max((_part_support(ctx.bounds[i], planes, -view[2, :3]) - view[2, 3] for i in boxes),
+               default=-np.inf)
+
+
+def _world_planes(view: np.ndarray, rows: list[np.ndarray]) -> np.ndarray:
+    """Planes (P, 4) in world space from rows (4,) over light-view (x, y, z, 1)."""
+    return np.array([r @ view for r in rows])
+
+
+@pytest.mark.parametrize("kind", ["directional", "spot"])
+def test_far_bound_is_the_deepest_receiver_point_under_the_map(kind):
+    # A field of boxes over a ground (more than the spot's PYRAMID_FIRST receivers, so that its
+    # deepest-first pass is taken): the bound equals the deepest point of the receivers' boxes
+    # under a window (a pyramid for the spot) that covers part of the field, as linear
+    # programming finds it box by box, to rounding.
+    from shadowmap.renderer.plan.fit import (
+        PYRAMID_FIRST,
+        _column_far,
+        _pyramid_far,
+        reach_directional,
+        reach_spot,
+    )
+
+    scene = box_field(18)
+    light = SUN if kind == "directional" else {"type": "spot", "position": [4.0, 14.0, 6.0],
+                                               "target": [0, 0, 0], "outer_cone_deg": 60}
+    camera = {"eye": [0.0, 35.0, 25.0], "target": [0.0, 0.0, 0.0]}
+    args = inputs(scene, camera, [light])
+    ctx = PlanContext.build(args[0], args[1], args[3], args[4])
+    lt = args[2][0]
+    position = (np.zeros(3) if lt.type == "directional"
+                else np.asarray(lt.position, np.float64) - ctx.origin)
+    s = Subject(lt, position, ctx.receivers())
+    assert len(s.receivers) > PYRAMID_FIRST
+    if kind == "directional":
+        reach = reach_directional(ctx, s)
+        v = reach.view
+        x0, y0, x1, y1 = reach.window
+        window = (x0 + 0.3 * (x1 - x0), x0 + 0.6 * (x1 - x0), y0 + 0.2 * (y1 - y0),
+                  y0 + 0.7 * (y1 - y0))
+        got = _column_far(ctx, reach, s.receivers, window)
+        e = np.eye(4)
+        planes = _world_planes(v, [e[0] - window[0] * e[3], window[1] * e[3] - e[0],
+                                   e[1] - window[2] * e[3], window[3] * e[3] - e[1]])
+    else:
+        reach = reach_spot(ctx, s)
+        v = reach.view
+        a_lo = reach.a_lo + 0.3 * (reach.a_hi - reach.a_lo)
+        a_hi = reach.a_lo + 0.7 * (reach.a_hi - reach.a_lo)
+        near = 0.5 * float(reach.depth_min[s.receivers].max())
+        got = _pyramid_far(ctx, reach, s.receivers, a_lo, a_hi, near)
+        e = np.eye(4)
+        # x >= a_lo.x d and x <= a_hi.x d with d = -z; d >= near.
+        planes = _world_planes(v, [e[0] + a_lo[0] * e[2], -e[0] - a_hi[0] * e[2],
+                                   e[1] + a_lo[1] * e[2], -e[1] - a_hi[1] * e[2],
+                                   -e[2] - near * e[3]])
+    planes = planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
+    want = _deepest_by_lp(ctx, s.receivers, planes, v)
+    assert np.isfinite(want)
+    scale = float(np.max(np.abs(ctx.bounds)))
+    assert want - 1e-7 * scale <= got <= want + 1e-7 * scale, (got, want)
+    # Tighter than the deepest seen point anywhere, which a map's range ended at before.
+    assert got < reach.far

@@ -391,36 +391,66 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
 def _pyramid_far(ctx: PlanContext, reach: SpotReach, receivers: np.ndarray, a_lo: np.ndarray,
                  a_hi: np.ndarray, near: float) -> float:
     """The deepest light depth of the receivers' boxes inside the pyramid of slopes
-    [a_lo, a_hi] past ``near``, inf where none reaches it (the spot's :func:`_column_far`)."""
-    lc = reach.lc[receivers]  # (R, 8, 3)
-    depth = reach.depth[receivers]  # (R, 8)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ang = lc[..., :2] / depth[..., None]
-    front = depth > near
-    # Outside when every corner lies beyond one side of the pyramid, or before its near end.
-    out = ~np.any(front, axis=1)
+    [a_lo, a_hi] past ``near``, inf where none reaches it (the spot's :func:`_column_far`).
+
+    The deepest boxes are weighed first (:data:`PYRAMID_FIRST` of them): once one of those lies
+    in the pyramid, a box no deeper cannot move the bound, and at thousands of instances the
+    rest are never tested.
+    """
+    deepest = reach.depth[receivers].max(axis=1)
+    far = -np.inf
+    rest = np.arange(len(receivers))
+    if len(rest) > PYRAMID_FIRST:
+        first = np.argpartition(-deepest, PYRAMID_FIRST - 1)[:PYRAMID_FIRST]
+        far = _pyramid_far_of(ctx, reach, receivers[first], deepest[first], a_lo, a_hi, near,
+                              far)
+        rest = np.delete(rest, first)
+    rest = rest[deepest[rest] > far]
+    if len(rest):
+        far = _pyramid_far_of(ctx, reach, receivers[rest], deepest[rest], a_lo, a_hi, near, far)
+    return far if np.isfinite(far) else np.inf
+
+
+#: Receivers :func:`_pyramid_far` weighs before the others.
+PYRAMID_FIRST = 256
+
+
+def _pyramid_far_of(ctx: PlanContext, reach: SpotReach, boxes: np.ndarray, deepest: np.ndarray,
+                    a_lo: np.ndarray, a_hi: np.ndarray, near: float, far: float) -> float:
+    """``far`` raised to the deepest point of ``boxes`` (indices; ``deepest`` (B,) their deepest
+    corners) inside the pyramid (:func:`_pyramid_far`)."""
+    depth = reach.depth[boxes]  # (B, 8)
+    # Each corner against the pyramid's sides and its near end, as products (no division):
+    # x >= a_lo.x d, x <= a_hi.x d, the same for y, and d > near. A box is outside when every
+    # corner lies beyond one of these planes, inside when every corner lies within all.
+    sides = []
     for axis in (0, 1):
-        out |= np.all(front & (ang[..., axis] < a_lo[axis]), axis=1) & np.all(front, axis=1)
-        out |= np.all(front & (ang[..., axis] > a_hi[axis]), axis=1) & np.all(front, axis=1)
-    inside = np.all(front & np.all((ang >= a_lo) & (ang <= a_hi), axis=2), axis=1)
-    far = float(np.max(depth[inside].max(axis=1), initial=-np.inf))
-    straddling = receivers[~out & ~inside]
+        v = reach.lc[boxes, :, axis]
+        sides += [v >= a_lo[axis] * depth, v <= a_hi[axis] * depth]
+    sides.append(depth > near)
+    out = np.zeros(len(boxes), bool)
+    inside = np.ones(len(boxes), bool)
+    for ok in sides:
+        out |= ~ok.any(axis=1)
+        inside &= ok.all(axis=1)
+    far = max(far, float(np.max(deepest[inside], initial=-np.inf)))
+    # Only a box reaching deeper than those can move the bound: clip just those.
+    straddling = boxes[~out & ~inside & (deepest > far)]
     if len(straddling):
         z0 = near
         z1 = float(reach.depth[straddling].max())
         z1 += 1.0 + abs(z1)  # past every box
-        if z1 > z0:
-            hull_view = np.array([[x * z, y * z, -z] for z in (z0, z1)
-                                  for x in (a_lo[0], a_hi[0]) for y in (a_lo[1], a_hi[1])])
-            world = np.linalg.inv(reach.view)
-            hull = hull_view @ world[:3, :3].T + world[:3, 3]
-            planes = frustum_planes(frustum(a_lo[0] * z0, a_hi[0] * z0, a_lo[1] * z0,
-                                            a_hi[1] * z0, z0, z1) @ reach.view)
-            scale = float(np.max(np.abs(hull)))
-            pts = clip_boxes(ctx.bounds[straddling], planes, hull, 1e-9 * scale)
-            if len(pts):
-                far = max(far, float(np.max(-(pts @ reach.view[2, :3] + reach.view[2, 3]))))
-    return far if np.isfinite(far) else np.inf
+        hull_view = np.array([[x * z, y * z, -z] for z in (z0, z1)
+                              for x in (a_lo[0], a_hi[0]) for y in (a_lo[1], a_hi[1])])
+        world = np.linalg.inv(reach.view)
+        hull = hull_view @ world[:3, :3].T + world[:3, 3]
+        planes = frustum_planes(frustum(a_lo[0] * z0, a_hi[0] * z0, a_lo[1] * z0, a_hi[1] * z0,
+                                        z0, z1) @ reach.view)
+        scale = float(np.max(np.abs(hull)))
+        pts = clip_boxes(ctx.bounds[straddling], planes, hull, 1e-9 * scale)
+        if len(pts):
+            far = max(far, float(np.max(-(pts @ reach.view[2, :3] + reach.view[2, 3]))))
+    return far
 
 
 # --------------------------------------------------------------------------------------------
