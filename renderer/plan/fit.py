@@ -265,12 +265,19 @@ def _column_depths(ctx: PlanContext, reach: DirectionalReach, boxes: np.ndarray,
     z1 += 1.0 + abs(z1)  # the column's depth: past every box
     z0 -= 1.0 + abs(z0)
     column = np.array([[x, y, -z] for z in (z0, z1) for x in (x0, x1) for y in (y0, y1)])
-    world = np.linalg.inv(reach.view)
-    hull = column @ world[:3, :3].T + world[:3, 3]
-    planes = frustum_planes(ortho(x0, x1, y0, y1, z0, z1) @ reach.view)
+    return _depths_inside(ctx, reach.view, ortho(x0, x1, y0, y1, z0, z1), column, boxes)
+
+
+def _depths_inside(ctx: PlanContext, view: np.ndarray, proj: np.ndarray, corners: np.ndarray,
+                   boxes: np.ndarray) -> np.ndarray:
+    """Light depths (M,) of the vertices of the parts of ``boxes`` (indices) inside the light's
+    frustum ``proj``, whose corners in light view are ``corners`` (8, 3; numbered as
+    :func:`.geometry.clip_boxes` expects)."""
+    world = np.linalg.inv(view)
+    hull = corners @ world[:3, :3].T + world[:3, 3]
     scale = float(np.max(np.abs(hull)))
-    pts = clip_boxes(ctx.bounds[boxes], planes, hull, 1e-9 * scale)
-    return -(pts @ reach.view[2, :3] + reach.view[2, 3])
+    pts = clip_boxes(ctx.bounds[boxes], frustum_planes(proj @ view), hull, 1e-9 * scale)
+    return -(pts @ view[2, :3] + view[2, 3])
 
 
 def _column_far(ctx: PlanContext, reach: DirectionalReach, receivers: np.ndarray,
@@ -440,16 +447,11 @@ def _pyramid_far_of(ctx: PlanContext, reach: SpotReach, boxes: np.ndarray, deepe
         z0 = near
         z1 = float(reach.depth[straddling].max())
         z1 += 1.0 + abs(z1)  # past every box
-        hull_view = np.array([[x * z, y * z, -z] for z in (z0, z1)
-                              for x in (a_lo[0], a_hi[0]) for y in (a_lo[1], a_hi[1])])
-        world = np.linalg.inv(reach.view)
-        hull = hull_view @ world[:3, :3].T + world[:3, 3]
-        planes = frustum_planes(frustum(a_lo[0] * z0, a_hi[0] * z0, a_lo[1] * z0, a_hi[1] * z0,
-                                        z0, z1) @ reach.view)
-        scale = float(np.max(np.abs(hull)))
-        pts = clip_boxes(ctx.bounds[straddling], planes, hull, 1e-9 * scale)
-        if len(pts):
-            far = max(far, float(np.max(-(pts @ reach.view[2, :3] + reach.view[2, 3]))))
+        corners = np.array([[x * z, y * z, -z] for z in (z0, z1)
+                            for x in (a_lo[0], a_hi[0]) for y in (a_lo[1], a_hi[1])])
+        proj = frustum(a_lo[0] * z0, a_hi[0] * z0, a_lo[1] * z0, a_hi[1] * z0, z0, z1)
+        depth = _depths_inside(ctx, reach.view, proj, corners, straddling)
+        far = max(far, float(np.max(depth, initial=-np.inf)))
     return far
 
 
