@@ -53,8 +53,15 @@ def models_dir() -> Path:
 
 
 def results_dir(quick: bool = False) -> Path:
-    """``bench/results/``; smoke runs (``--quick``) write to ``bench/results/quick/`` instead."""
-    path = RESULTS / "quick" if quick else RESULTS
+    """``$SHADOWMAP_BENCH_RESULTS``, else ``bench/results/``; smoke runs (``--quick``) write to
+    its ``quick/`` folder instead.
+
+    Results from another kind of machine (a GPU, say) go to a folder of their own, so that they
+    never replace this machine's, which the README quotes.
+    """
+    env = os.environ.get("SHADOWMAP_BENCH_RESULTS")
+    base = Path(env) if env else RESULTS
+    path = base / "quick" if quick else base
     path.mkdir(parents=True, exist_ok=True)
     return path
 

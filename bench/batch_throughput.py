@@ -6,10 +6,11 @@ folder per batch), interleaved over ``--repeats`` rounds:
 
 - ``loop``: a plain Python loop in this process: one :class:`~shadowmap.batch.worker.JobRunner`,
   the same files written, the same records appended (no processes, no pool);
-- ``local ×1``, ``local ×2``: :class:`~shadowmap.batch.LocalPool` with 1 and 2 worker processes;
+- ``local ×1``, ``local ×2``: :class:`~shadowmap.batch.LocalPool` with 1 and 2 worker processes
+  (``--pools 1,2,4,8``: other sizes, for a machine with more cores or a GPU);
 - ``ray ×1``, ``ray ×2``: :class:`~shadowmap.batch.ray.RayBackend` with 1 and 2 actors on a local
   cluster (``ray.init(num_cpus=3)``: three logical CPUs hold both Ray backends
-  at once; one runs at a time).
+  at once; one runs at a time). ``--no-ray`` leaves them out (Ray is the ``ray`` extra).
 
 The manifest is ``tests/batch_jobs.py``'s: 96×72 images of the demo scene and four real models,
 several output sets, some jobs with 3 views or 2 light lists, 6 bad jobs. Per-job overhead is
@@ -24,7 +25,8 @@ meta.json), per view.
 
 Writes ``bench/results/batch_throughput.{md,csv}`` (``--quick``: ``bench/results/quick/``).
 
-Run: ``PYTHONPATH=. .venv/bin/python bench/batch_throughput.py [--quick] [--repeats N]``
+Run: ``PYTHONPATH=. .venv/bin/python bench/batch_throughput.py [--quick] [--repeats N]
+[--pools 1,2] [--no-ray]``
 """
 
 from __future__ import annotations
@@ -141,11 +143,8 @@ def multiview(repeats: int, width: int, height: int) -> dict[str, list[float]]:
     return out
 
 
-def run(quick: bool, repeats: int) -> None:
-    import ray
-
-    from shadowmap.batch.ray import RayBackend
-
+def run(quick: bool, repeats: int, pools: tuple[int, ...] = (1, 2), with_ray: bool = True
+        ) -> None:
     t_start = time.perf_counter()
     out_dir = C.results_dir(quick)
     work = Path(tempfile.mkdtemp(prefix="shadowmap-batch-bench-"))
@@ -158,10 +157,15 @@ def run(quick: bool, repeats: int) -> None:
         hasher.hash_inputs(job)
     hash_s = time.perf_counter() - t
     variations = sum(len(j.variations()) for j in jobs if j.error is None)
-    # Three logical CPUs, so that the 1-actor and the 2-actor backends (1 CPU per actor) are
-    # held at once; only one of them runs at a time, on the machine's cores.
-    ray.init(num_cpus=3, include_dashboard=False, object_store_memory=256 * 2**20,
-             log_to_driver=False)
+    if with_ray:
+        import ray
+
+        from shadowmap.batch.ray import RayBackend
+
+        # Three logical CPUs, so that the 1-actor and the 2-actor backends (1 CPU per actor)
+        # are held at once; only one of them runs at a time, on the machine's cores.
+        ray.init(num_cpus=3, include_dashboard=False, object_store_memory=256 * 2**20,
+                 log_to_driver=False)
     starts: dict[str, float] = {}
     backends: dict[str, object] = {}
 
@@ -172,10 +176,11 @@ def run(quick: bool, repeats: int) -> None:
         backends[name] = backend
 
     started("loop", LoopBackend())
-    started("local ×1", LocalPool(1))
-    started("local ×2", LocalPool(2))
-    started("ray ×1", RayBackend(actors=1))
-    started("ray ×2", RayBackend(actors=2))
+    for n in pools:
+        started(f"local ×{n}", LocalPool(n))
+    if with_ray:
+        started("ray ×1", RayBackend(actors=1))
+        started("ray ×2", RayBackend(actors=2))
     try:
         times = time_batches(backends, manifest, work, repeats)
         footer_renderer = JobRunner()
@@ -186,7 +191,8 @@ def run(quick: bool, repeats: int) -> None:
     finally:
         for b in backends.values():
             b.close()  # type: ignore[attr-defined]
-        ray.shutdown()
+        if with_ray:
+            ray.shutdown()
     # A driver-side cost: writing one job's files and its record, measured on its own.
     sample = next(j for j in jobs if j.error is None and j.views is None)
     log = ResultsLog(work / "drv")
@@ -216,7 +222,7 @@ def run(quick: bool, repeats: int) -> None:
     for name, sec in med.items():
         per_job = sec / n
         ref = None
-        if name.startswith("ray"):
+        if name.startswith("ray") and "local " + name.split()[1] in med:
             ref = med["local " + name.split()[1]] / n
         rows.append([name, C.fmt(n / sec, 1), C.fmt(per_job * 1000, 2),
                      C.fmt((per_job - loop_job) * 1000, 2),
@@ -262,5 +268,22 @@ def run(quick: bool, repeats: int) -> None:
              time.perf_counter() - t_start)
 
 
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true",
+                    help="fewer repeats, smaller multi-view frames")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help=f"timed batches per backend (default {C.DEFAULT_REPEATS}, quick 1)")
+    ap.add_argument("--pools", default="1,2",
+                    help="local pool sizes to time, comma-separated (default 1,2)")
+    ap.add_argument("--no-ray", action="store_true", help="leave out the Ray backends")
+    args = ap.parse_args(argv)
+    pools = tuple(int(n) for n in args.pools.split(","))
+    run(args.quick, args.repeats or (1 if args.quick else C.DEFAULT_REPEATS), pools,
+        not args.no_ray)
+
+
 if __name__ == "__main__":
-    C.bench_main(__doc__ or "", run, "fewer repeats, smaller multi-view frames", 1)
+    main()

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bench._common import results_dir
 from shadowmap.renderer import Renderer, RenderParams, load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "bench" / "results"
 PARAMS = {"width": 640, "height": 480, "ground": True}
 
 
@@ -207,8 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines)
     print(text)
     if not args.quick:
-        RESULTS.mkdir(exist_ok=True)
-        (RESULTS / "http_latency.md").write_text(text + "\n")
+        (results_dir() / "http_latency.md").write_text(text + "\n")
     return 0
 
 

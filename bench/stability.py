@@ -17,15 +17,14 @@ import argparse
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
+from bench._common import results_dir
 from shadowmap.renderer import Renderer, RenderParams
 from shadowmap.renderer import testing as T
 from shadowmap.renderer.params import ENCODINGS
 
-RESULTS = Path(__file__).resolve().parent / "results"
 #: The table's columns: every encoding (``depth`` with ``depth_bits: auto``), and ``depth`` at
 #: 32 bits.
 COLUMNS = {**{enc: {"encoding": enc} for enc in ENCODINGS},
@@ -151,8 +150,7 @@ def main(argv: list[str] | None = None) -> int:
               f"the encoding; {time.perf_counter() - started:.0f} s.\n")
     print(text + footer)
     if not args.quick:
-        RESULTS.mkdir(exist_ok=True)
-        (RESULTS / "stability.md").write_text("# Stiff and extreme cases, every encoding\n\n"
+        (results_dir() / "stability.md").write_text("# Stiff and extreme cases, every encoding\n\n"
                                               + text + footer)
     return 0
 
