@@ -6,6 +6,7 @@ imported; :class:`~shadowmap.renderer.Renderer` selects it explicitly before imp
 
 from __future__ import annotations
 
+import ctypes
 import importlib
 import importlib.util
 import os
@@ -40,9 +41,10 @@ class GLContext:
                 # GPU Ray gave it); the first device otherwise.
                 device = module.get_device_by_index(egl_device_index())
                 self._platform = module.EGLPlatform(16, 16, device=device)
+                init_egl_context(self._platform)
             else:
                 self._platform = module.OSMesaPlatform(16, 16)
-            self._platform.init_context()
+                self._platform.init_context()
             self._platform.make_current()
             if self.platform == "egl":
                 GLContext._live_egl += 1
@@ -121,6 +123,71 @@ def pyrender_platform(name: str) -> ModuleType:
             del sys.modules[_PLATFORMS_PACKAGE]
             raise
     return importlib.import_module(f"{_PLATFORMS_PACKAGE}.{name}")
+
+
+#: Core-profile versions asked for, newest first; the shaders need 4.1.
+EGL_CONTEXT_VERSIONS = ((4, 6), (4, 5), (4, 4), (4, 3), (4, 2), (4, 1))
+
+
+def init_egl_context(platform: object) -> None:
+    """Create the EGL context of pyrender's ``EGLPlatform`` with the newest core profile.
+
+    pyrender's own ``init_context`` asks for exactly 4.1. Mesa answers with its newest version
+    all the same, NVIDIA's driver with 4.1, which lacks ``glMultiDrawElementsIndirect`` (4.3), so
+    instanced scenes would draw one call per run of instances. This is that method with the
+    versions of :data:`EGL_CONTEXT_VERSIONS` tried in turn; it sets the attributes pyrender's
+    ``make_current`` and :meth:`GLContext.release` read.
+
+    Raises
+    ------
+    RenderError
+        No display, no configuration, or no context of any of those versions.
+    """
+    from OpenGL import EGL, arrays
+
+    config_attributes = arrays.GLintArray.asArray([
+        EGL.EGL_SURFACE_TYPE, EGL.EGL_PBUFFER_BIT,
+        EGL.EGL_BLUE_SIZE, 8, EGL.EGL_RED_SIZE, 8, EGL.EGL_GREEN_SIZE, 8,
+        EGL.EGL_DEPTH_SIZE, 24,
+        EGL.EGL_COLOR_BUFFER_TYPE, EGL.EGL_RGB_BUFFER,
+        EGL.EGL_RENDERABLE_TYPE, EGL.EGL_OPENGL_BIT,
+        EGL.EGL_CONFORMANT, EGL.EGL_OPENGL_BIT,
+        EGL.EGL_NONE,
+    ])
+    # Without X: a DISPLAY in the environment would make EGL look for that X server.
+    display_env = os.environ.pop("DISPLAY", None)
+    try:
+        display = platform._egl_device.get_display()  # type: ignore[attr-defined]
+    finally:
+        if display_env is not None:
+            os.environ["DISPLAY"] = display_env
+    major, minor = ctypes.c_long(), ctypes.c_long()
+    configs = (EGL.EGLConfig * 1)()
+    count = ctypes.c_long()
+    if not EGL.eglInitialize(display, major, minor):
+        raise RenderError("eglInitialize failed")
+    if not EGL.eglChooseConfig(display, config_attributes, configs, 1, count) or not count.value:
+        raise RenderError("no EGL configuration for an offscreen OpenGL context")
+    if not EGL.eglBindAPI(EGL.EGL_OPENGL_API):
+        raise RenderError("eglBindAPI(EGL_OPENGL_API) failed")
+    context = None
+    for version in EGL_CONTEXT_VERSIONS:
+        attributes = arrays.GLintArray.asArray([
+            EGL.EGL_CONTEXT_MAJOR_VERSION, version[0],
+            EGL.EGL_CONTEXT_MINOR_VERSION, version[1],
+            EGL.EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL.EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT,
+            EGL.EGL_NONE,
+        ])
+        try:
+            context = EGL.eglCreateContext(display, configs[0], EGL.EGL_NO_CONTEXT, attributes)
+        except EGL.EGLError:  # EGL_BAD_MATCH: the driver has no such version
+            context = None
+        if context:
+            break
+    if not context:
+        raise RenderError("no OpenGL core-profile context of version 4.1 or newer")
+    platform._egl_display = display  # type: ignore[attr-defined]
+    platform._egl_context = context  # type: ignore[attr-defined]
 
 
 def egl_device_index() -> int:
