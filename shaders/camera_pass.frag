@@ -80,15 +80,6 @@ void main() {
 #if HAS_COLOR
     base *= v_color;
 #endif
-#if ALPHA_MASK
-#if HAS_UV
-    // The cut-out is tested at full resolution so its outline does not erode with distance.
-    float coverage = base.a / max(tex.a, 1e-6) * textureLod(u_base_texture, v_uv, 0.0).a;
-#else
-    float coverage = base.a;
-#endif
-    if (coverage < u_alpha_cutoff) discard;
-#endif
     vec3 p = v_world;
     vec3 to_eye = normalize(u_camera_position - p);
     vec3 n = normalize(v_normal);
@@ -105,6 +96,18 @@ void main() {
     vec3 color = u_ambient * base.rgb;
 #if NUM_MAPS_2D > 0
     Map2dDerivatives map2d = map2d_derivatives();  // here, in uniform control flow
+#endif
+    // The cut-out's discard comes after every derivative: a quad's derivatives are undefined
+    // once one of its fragments is discarded (NVIDIA's are garbage there, which drew false
+    // shadow along every cut-out's outline; llvmpipe's happen to stay right).
+#if ALPHA_MASK
+#if HAS_UV
+    // The cut-out is tested at full resolution so its outline does not erode with distance.
+    float coverage = base.a / max(tex.a, 1e-6) * textureLod(u_base_texture, v_uv, 0.0).a;
+#else
+    float coverage = base.a;
+#endif
+    if (coverage < u_alpha_cutoff) discard;
 #endif
     float vis[VIS_SIZE];
     for (int k = 0; k < VIS_SIZE; ++k) vis[k] = 1.0;

@@ -29,14 +29,15 @@ layout(location = 0) out vec4 o_depth;
 #endif
 
 void main() {
-#if ALPHA_TEST
-    // Level 0 (the copy has no other): mipmaps would average thin cut-out features away at the
-    // light's texel rate.
-    if (u_base_alpha * textureLod(u_alpha_texture, v_uv, 0.0).r < u_alpha_cutoff) discard;
-#endif
     float t = (v_light_depth - u_depth_range.x) / (u_depth_range.y - u_depth_range.x);
 #if POLYGON_OFFSET
     t += u_polygon_offset.x * max(abs(dFdx(t)), abs(dFdy(t))) + u_polygon_offset.y;
+#endif
+#if ALPHA_TEST
+    // After the derivatives, which a discarded fragment leaves undefined in its quad. Level 0
+    // (the copy has no other): mipmaps would average thin cut-out features away at the light's
+    // texel rate.
+    if (u_base_alpha * textureLod(u_alpha_texture, v_uv, 0.0).r < u_alpha_cutoff) discard;
 #endif
 #if WRITE_DEPTH
     // Perspective lights: test and store linear depth rather than the hyperbolic window depth.
