@@ -34,6 +34,24 @@ def renderer():
     r.close()
 
 
+#: GL renderers that rasterize on the CPU (EGL and OSMesa both name Mesa's llvmpipe).
+SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast")
+
+
+@pytest.fixture(scope="session")
+def software_gl(renderer) -> str:
+    """For tests whose slow case is slow only on a CPU rasterizer: the renderer's name, or a skip.
+
+    A render meant to outlast a timeout (eight 81-tap point lights at 2896x2896 take about 9 s
+    on llvmpipe here) finishes in a fraction of a second on a GPU, so the timeout under test
+    would never fire there.
+    """
+    name = renderer.info["renderer"]
+    if not any(s in name.lower() for s in SOFTWARE_GL):
+        pytest.skip(f"the slow case is calibrated for a CPU rasterizer; {name} renders it at once")
+    return name
+
+
 def _gl_errors() -> list[int]:
     from OpenGL import GL
 

@@ -164,7 +164,7 @@ def test_dead_worker_is_replaced_and_its_job_retried(tmp_path, models):
     assert len(retried) == 1 and retried[0]["worker"]["pid"] != killed[0]
 
 
-def test_hung_job_is_killed_retried_once_then_failed(tmp_path):
+def test_hung_job_is_killed_retried_once_then_failed(tmp_path, software_gl):
     """Past ``timeout``, a job's worker is killed; the job is tried once more and then recorded
     as failed, and the jobs after it are rendered (3 s: a new worker's first job builds the demo
     scene, about 1.7 s here; the slow one takes about 9 s on llvmpipe: eight point lights, each

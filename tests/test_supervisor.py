@@ -220,7 +220,7 @@ def test_run_refuses_an_unknown_setting():
 
 @pytest.mark.gl
 @pytest.mark.slow
-def test_slow_render_is_stopped_and_the_next_request_served(limits_server):
+def test_slow_render_is_stopped_and_the_next_request_served(limits_server, software_gl):
     before = health(limits_server)
     with httpx.Client(base_url=limits_server.url, timeout=60) as c:
         t0 = time.monotonic()
@@ -277,7 +277,7 @@ def test_a_queued_job_past_its_deadline_frees_its_place_at_once():
 
 @pytest.mark.gl
 @pytest.mark.slow
-def test_a_job_whose_client_gives_up_leaves_the_queue_at_once(default_server):
+def test_a_job_whose_client_gives_up_leaves_the_queue_at_once(default_server, software_gl):
     """A small job waits behind a slow render; its client gives up after 0.3 s. The job leaves
     the queue then, while the slow render still runs, and is never rendered."""
     url = default_server.url
