@@ -384,7 +384,9 @@ def test_real_programs_compile_with_their_defaults(renderer):
 
 # -- derivatives and discard ----------------------------------------------------------------
 
-_DERIVATIVE = re.compile(r"\b(?:dFdx|dFdy|fwidth)(?:Fine|Coarse)?\s*\(")
+# Derivatives, and the texture reads that take them implicitly to choose a mipmap level.
+_DERIVATIVE = re.compile(r"\b(?:(?:dFdx|dFdy|fwidth)(?:Fine|Coarse)?|texture|textureProj"
+                         r"|textureOffset|textureProjOffset)\s*\(")
 _FUNCTION = re.compile(r"^\w+\s+(?P<name>\w+)\s*\([^;{]*\)\s*\{", re.M)
 
 
@@ -407,8 +409,9 @@ def _code(text: str) -> str:
 def test_every_discard_comes_after_the_last_derivative():
     """A quad's derivatives are undefined once one of its fragments is discarded: NVIDIA's were
     garbage there, which drew false shadow along every alpha cut-out's outline (llvmpipe's stay
-    right, so only this order shows it here). In each fragment stage's main(), every derivative,
-    direct or through a function of the shaders that takes one, precedes the first discard."""
+    right, so only this order shows it here). In each fragment stage's main(), every derivative
+    (and every texture read that takes them for its mipmap level), direct or through a function
+    of the shaders that takes one, precedes the first discard."""
     folder = resources.files("shadowmap.shaders")
     texts = {f.name: _code(f.read_text()) for f in folder.iterdir() if f.name.endswith(".frag")}
     chunks = [_code(f.read_text()) for f in folder.joinpath("chunks").iterdir()
