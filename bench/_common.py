@@ -447,6 +447,10 @@ class PyrenderBaseline:
     """
 
     def __init__(self, width: int = WIDTH, height: int = HEIGHT) -> None:
+        # pyrender imports its viewer, which loads pyglet's X11 window code unless pyglet runs
+        # headless: on a machine without X libraries (a GPU server, say) the import fails.
+        # Offscreen rendering uses none of it.
+        os.environ.setdefault("PYGLET_HEADLESS", "true")
         import pyrender
 
         self.pyrender = pyrender
