@@ -197,6 +197,26 @@ def test_without_optimize_there_is_no_region():
     assert "shadow_region" not in p.to_dict()["camera_pass"]
 
 
+def test_without_a_map_no_region_is_planned(monkeypatch):
+    """Lights that cast no shadow leave no lookup to draw around: the region is not computed."""
+    calls = []
+    real = SR.plan_region
+
+    def spy(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    import shadowmap.renderer.plan.plan as plan_module
+
+    monkeypatch.setattr(plan_module, "plan_region", spy)
+    unlit = plan(T.caster_on_ground(), lights=[{"direction": [-0.5, -1, -0.3],
+                                                 "cast_shadows": False}])
+    assert not unlit.map_lights and unlit.shadow_region is None and not calls
+    assert "shadow_region" not in unlit.to_dict()["camera_pass"]
+    lit = plan(T.caster_on_ground(), lights=[{"direction": [-0.5, -1, -0.3]}])
+    assert lit.shadow_region is not None and calls == [1]
+
+
 def test_a_shadow_off_screen_skips_the_light_pass_unless_its_picture_is_asked_for():
     # The camera looks down at a corner of the ground, away from the casters and their shadows;
     # a map over every receiver (fit "scene") has casters, and nothing of their shadows shows.

@@ -203,8 +203,8 @@ class RenderPlan:
         Where on screen any light's lookup may return less than 1
         (:mod:`.shadow_region`); None without ``optimize``, below
         :data:`~.shadow_region.MIN_REGION_PIXELS` camera pixels or past
-        :data:`~.shadow_region.MAX_SPLIT_RECEIVERS` visible receivers: lookups on every
-        receiver.
+        :data:`~.shadow_region.MAX_SPLIT_RECEIVERS` visible receivers (lookups on every
+        receiver), and without any map (no lookup anywhere).
     """
 
     camera: Camera
@@ -277,8 +277,10 @@ def make_plan(
     else:
         planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
     region = None
-    # Past MAX_SPLIT_RECEIVERS visible receivers each one would be drawn with lookups anyway.
+    # Past MAX_SPLIT_RECEIVERS visible receivers each one would be drawn with lookups anyway;
+    # without a map there is no lookup to leave out (nor a region in the report).
     if (params.optimize and camera.width * camera.height >= MIN_REGION_PIXELS
+            and any(lp.maps for lp in planned)
             and int(ctx.receive[visible].sum()) <= MAX_SPLIT_RECEIVERS):
         planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
