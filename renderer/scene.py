@@ -37,6 +37,14 @@ if TYPE_CHECKING:
 #: A blended surface casts a shadow where its alpha reaches this (a cut-out at half coverage):
 #: a shadow map holds one depth per texel, so it cannot cast a partial shadow.
 BLEND_SHADOW_CUTOFF = 0.5
+#: Gap between the added ground plane and the scene's lowest point, as a share of the scene's
+#: diagonal. Objects resting on the ground leave a crevice of this height under their edges;
+#: no shadow map resolves it (it is far below a texel), so the ground seen in it is drawn lit
+#: where the truth is in shadow. Small enough that a camera almost never sees into it, large
+#: enough to stay at least 16 float32 steps in the plane's own coordinates (stored relative to the
+#: scene's centre) and in the reference's normalised frame, so the plane never ties with a
+#: bottom face.
+GROUND_GAP = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,13 +211,13 @@ class Scene:
     def with_ground(self, color: Sequence[float] = (0.8, 0.8, 0.8, 1.0)) -> Scene:
         """This scene plus a ground plane under it (receives shadows, casts none).
 
-        The plane lies just below the scene's lowest point (along +Y, glTF's up) and extends
-        three times the scene's footprint in every direction.
+        The plane lies :data:`GROUND_GAP` of the scene's diagonal below its lowest point (along
+        +Y, glTF's up) and extends three times the scene's footprint in every direction.
         """
         lo, hi = self.bounds
         c = (lo + hi) / 2
         r = max(float(np.max(hi - lo)), 1e-30) * 3
-        y = lo[1] - (hi[1] - lo[1]) * 1e-4
+        y = lo[1] - float(np.linalg.norm(hi - lo)) * GROUND_GAP
         pos = np.array([[-r, 0, -r], [r, 0, -r], [r, 0, r], [-r, 0, r]], np.float64)
         pos[:, [0, 2]] += c[[0, 2]]
         pos[:, 1] = y

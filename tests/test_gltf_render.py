@@ -159,14 +159,7 @@ def _corpus() -> list[str]:
 
 #: Known gaps by (file, light), measured at 640x480 with the default settings: the test fails
 #: the day one is fixed, so its mark must then go.
-KNOWN_GAPS = {
-    # The pedestal's top is seen almost edge-on: one pixel row spans about 6 cm of it, so a
-    # shadow edge that the spot's 4096 map places half a texel (a few millimetres) off flips a
-    # whole row of pixels, and the shadows here are slivers of a pixel or two (1,700 pixels in
-    # all). 0.983 with an 8192 map. Its point light passes with one 4096 frustum around the
-    # casters (0.976; 0.930 with the 2048 cube faces it had before).
-    ("AlphaBlendModeTest.glb", "spot"): "IoU 0.967: slivers on a surface seen edge-on",
-}
+KNOWN_GAPS: dict[tuple[str, str], str] = {}
 
 
 def _corpus_cases() -> list:

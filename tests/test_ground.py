@@ -60,3 +60,29 @@ def test_ground_on_a_floored_scene_is_left_out_with_a_warning(renderer):
     with_ground = renderer.render(objects, RenderParams.model_validate({**params, "ground": True}))
     assert not any("own floor" in w for w in with_ground.warnings)
     assert np.abs(with_ground.color.astype(int) - bare.color.astype(int)).mean() > 5
+
+
+def test_no_camera_sees_ground_under_an_object_resting_on_it():
+    """The added plane touches the scene's lowest point to within ``GROUND_GAP``: a slab on it
+    leaves no crevice under its front edge where the truth is ground in the slab's shadow.
+
+    The light comes from the front: every surface the camera sees is lit, except ground that
+    shows through a gap under the slab. The camera is turned a little so that the edge crosses
+    pixel rows and some pixel centres would fall in such a gap (the plane used to lie 1e-4 of the
+    scene's height below it: 13 shadowed pixels here).
+    """
+    from shadowmap.renderer.camera import resolve_camera
+    from shadowmap.renderer.lights import resolve_lights
+    from shadowmap.renderer.reference import trace_reference
+
+    slab = trimesh.creation.box(extents=(8.6, 0.2, 1.3))
+    wall = trimesh.creation.box(extents=(8.6, 3, 0.1))
+    scene = _scene((slab, (0, 0, -0.1)), (wall, (0, 1.6, -0.7))).with_ground()
+    params = RenderParams.model_validate({
+        "width": 640, "height": 480, "camera": {"eye": [2.5, 3, 8], "target": [0, 0.5, 0]},
+        "lights": [{"type": "directional", "direction": [-0.1, -1, -0.2]}]})
+    camera = resolve_camera(params.camera, scene, params.width, params.height)
+    ref = trace_reference(scene, camera, resolve_lights(params.lights, scene))
+    seen = ref.valid[..., 0]
+    assert seen.sum() > 100_000
+    assert int((ref.visibility[..., 0][seen] < 0.5).sum()) == 0
