@@ -36,7 +36,8 @@ out vec3 v_world;
 out vec3 v_normal;
 // Every variant puts a vertex at the very same depth: the camera pass draws a receiver with
 // shadow lookups inside its shadow's rectangle first, then again whole without them, where the
-// depth test (GL_LESS) keeps the first draw's pixels (renderer/plan/shadow_region.py).
+// strict depth test (GL_GREATER with reversed depth, else GL_LESS) keeps the first draw's
+// pixels (renderer/plan/shadow_region.py).
 invariant gl_Position;
 
 void main() {

@@ -149,6 +149,61 @@ def test_visibility_is_nan_where_no_geometry_and_depth_matches_reference(rendere
     assert np.median(rel) < 1e-3
 
 
+def _sheets_far_away(gap: float):
+    """Two 400-unit sheets facing a camera at the origin, 350 units away and ``gap`` apart, the
+    farther one first in the scene (drawn first: only the depth test keeps it behind)."""
+    import trimesh
+
+    from shadowmap.renderer import scene_from_meshes
+
+    def sheet(z: float) -> trimesh.Trimesh:
+        h = 200.0
+        return trimesh.Trimesh(vertices=[[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]],
+                               faces=[[0, 1, 2], [0, 2, 3]], process=False)
+
+    scene = scene_from_meshes([sheet(-350.0), sheet(-350.0 + gap)], ["far", "near"])
+    # The near plane 1e-4 of the far one: what the automatic near plane is for a camera
+    # inside a wide ground's bounds.
+    params = RenderParams.model_validate({
+        "width": 64, "height": 48, "outputs": ["color", "depth"],
+        "camera": {"eye": [0, 0, 0], "target": [0, 0, -1], "znear": 0.093, "zfar": 932.0},
+        "lights": [{"type": "directional", "direction": [0, 0, -1], "cast_shadows": False}]})
+    return scene, params
+
+
+def test_depth_keeps_surfaces_apart_far_from_a_close_near_plane(renderer):
+    """Surfaces 3 cm apart 350 units away, through a near plane 0.093 units away: the nearer
+    one wins every pixel and the depth output reads it (with depth growing to the far plane a
+    float buffer held about 0.08 units there, and the farther sheet showed through)."""
+    scene, params = _sheets_far_away(0.03)
+    depth = renderer.render(scene, params).depth
+    assert np.all(np.isfinite(depth))
+    # Depth along the view axis: the near sheet's 349.97 at every pixel, to a float32 step.
+    np.testing.assert_allclose(depth, 349.97, rtol=1e-6)
+
+
+def test_standard_depth_range_where_clip_control_is_missing(renderer, demo):
+    """Without glClipControl the camera pass draws with GL's default depth range: the same
+    picture and, within the precision that range has, the same depth."""
+    from shadowmap.renderer import Renderer
+
+    params = RenderParams(outputs=["color", "visibility", "depth"])
+    reversed_ = renderer.render(demo, params)
+    with Renderer() as plain:
+        plain.camera_pass._reversed_z = False  # as on a context without GL 4.5
+        standard = plain.render(demo, params)
+        assert not plain.camera_pass.reversed_z
+    assert renderer.camera_pass.reversed_z
+    # Surfaces meeting at an edge may swap a pixel; nothing else differs.
+    differ = np.any(reversed_.color != standard.color, axis=-1)
+    assert differ.mean() < 1e-3
+    same = ~differ
+    np.testing.assert_array_equal(reversed_.visibility[same], standard.visibility[same])
+    both = same & np.isfinite(standard.depth)
+    np.testing.assert_array_equal(np.isfinite(reversed_.depth), np.isfinite(standard.depth))
+    np.testing.assert_allclose(reversed_.depth[both], standard.depth[both], rtol=1e-4)
+
+
 def test_light_depth_debug_image(renderer, demo):
     r = renderer.render(demo, RenderParams(camera=DEMO_CAMERA, outputs=["light_depth"]))
     (ld,) = r.light_depth

@@ -31,6 +31,15 @@ from .light_pass import ShadowMap
 SPARE_UV, SPARE_COLOR = 14, 15
 # Light clip space [-1, 1] -> texture space [0, 1] on x, y and z (the documents' bias matrix).
 BIAS = np.array([[0.5, 0, 0, 0.5], [0, 0.5, 0, 0.5], [0, 0, 0.5, 0.5], [0, 0, 0, 1.0]])
+# The camera's clip space -> reversed depth: z_ndc' = (1 - z_ndc) / 2, the near plane at window
+# depth 1 and the far plane at 0 (with glClipControl's zero-to-one depth range). A float depth
+# buffer holds most of its values near 0, so the depth test keeps about the same relative
+# precision at every distance; with depth growing towards the far plane it had the precision of
+# a 24-bit integer there, and surfaces a few centimetres apart 350 units away, seen through a
+# near plane 1e-4 of the far one (a camera inside a wide ground's bounds), drew each other.
+# x, y and w are unchanged: every pixel is covered by the same surfaces as with the standard
+# projection (the shadow region's rectangles are projected with it).
+REVERSED_Z = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, -0.5, 0.5], [0, 0, 0, 1.0]])
 
 
 @dataclass
@@ -57,6 +66,16 @@ class CameraPass:
         # The last frame's state, by (plan, request, maps' plans, visibility targets): a
         # repeated request (the same plan and request objects) reuses it and its defines.
         self._frame: tuple[RenderPlan, RenderParams, tuple, _FrameState] | None = None
+        self._reversed_z: bool | None = None  # known once a context is current
+
+    @property
+    def reversed_z(self) -> bool:
+        """Whether the camera pass draws with reversed depth (:data:`REVERSED_Z`): where the
+        context has ``glClipControl`` (GL 4.5, or ``ARB_clip_control``); the standard depth
+        range otherwise."""
+        if self._reversed_z is None:
+            self._reversed_z = _has_clip_control()
+        return self._reversed_z
 
     def _framebuffer(self, width: int, height: int, vis_targets: int) -> Framebuffer:
         key = (width, height, vis_targets)
@@ -95,12 +114,24 @@ class CameraPass:
         GL.glClearBufferfv(GL.GL_COLOR, 0, bg)
         for i in range(vis_targets):
             GL.glClearBufferfv(GL.GL_COLOR, 1 + i, np.full(4, np.nan, np.float32))
-        GL.glClearBufferfv(GL.GL_DEPTH, 0, np.ones(1, np.float32))
+        reversed_z = self.reversed_z
+        GL.glClearBufferfv(GL.GL_DEPTH, 0, np.full(1, 0.0 if reversed_z else 1.0, np.float32))
         GL.glEnable(GL.GL_DEPTH_TEST)
-        GL.glDepthFunc(GL.GL_LESS)
+        GL.glDepthFunc(GL.GL_GREATER if reversed_z else GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
         GL.glDisable(GL.GL_BLEND)
+        if not reversed_z:
+            self._draw(gpu, plan, maps, params, vis_targets)
+            return
+        GL.glClipControl(GL.GL_LOWER_LEFT, GL.GL_ZERO_TO_ONE)
+        try:
+            self._draw(gpu, plan, maps, params, vis_targets)
+        finally:  # the light pass and everything else draw with GL's default depth range
+            GL.glClipControl(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
 
+    def _draw(self, gpu: GpuScene, plan: RenderPlan, maps: list[ShadowMap],
+              params: RenderParams, vis_targets: int) -> None:
+        cam = plan.camera
         frame = self._frame_state(plan, maps, params, vis_targets)
         units = self._bind_maps(maps)
         arrays = instance_arrays(gpu.scene)
@@ -123,10 +154,11 @@ class CameraPass:
             return
         # Each receiver is drawn with the shadow lookups only inside the rectangle its shadows
         # can reach, and, where it shows outside it too, whole again right after without them:
-        # the depth test (GL_LESS) keeps the pixels already drawn, the same surface at the same
-        # depth (every variant declares gl_Position invariant), and fills in the rest. Everything
-        # else is drawn once, without lookups (plan.shadow_region). The groups keep the order
-        # of a frame drawn without the region, so equal depths resolve as they would there.
+        # the depth test (GL_GREATER, or GL_LESS) keeps the pixels already drawn, the same
+        # surface at the same depth (every variant declares gl_Position invariant), and fills in
+        # the rest. Everything else is drawn once, without lookups (plan.shadow_region). The
+        # groups keep the order of a frame drawn without the region, so equal depths resolve as
+        # they would there.
         plain = frame.without_maps()
         for p, cls, slots in gpu.groups(opaque, region.classes, SR.classes_count()):
             group = [(p, 1, slots)]
@@ -187,6 +219,8 @@ class CameraPass:
             return frame
         cam = plan.camera
         view_proj = SR.view_projection(cam, plan.origin)  # the plan's region used the same
+        if self.reversed_z:
+            view_proj = REVERSED_Z @ view_proj
         frame = _FrameState(plan, maps, params, view_proj, cam.position - plan.origin, vis_targets,
                             generic=not params.optimize)
         self._frame = (plan, params, sig, frame)
@@ -290,8 +324,13 @@ class CameraPass:
         if "depth" in outputs:
             d = fb.read_depth().astype(np.float64)
             n, f = camera.znear, camera.zfar
-            z = 2 * n * f / ((f + n) - (2 * d - 1) * (f - n))
-            out.depth = np.where(d >= 1.0, np.nan, z).astype(np.float32)
+            if self.reversed_z:  # window depth n (f - z) / ((f - n) z): 1 at z = n, 0 at f
+                z = n * f / (d * (f - n) + n)
+                nothing = d <= 0.0
+            else:
+                z = 2 * n * f / ((f + n) - (2 * d - 1) * (f - n))
+                nothing = d >= 1.0
+            out.depth = np.where(nothing, np.nan, z).astype(np.float32)
         return out
 
     def release(self) -> None:
@@ -303,6 +342,13 @@ class CameraPass:
         if self._white:
             GL.glDeleteTextures([self._white])
             self._white = 0
+
+
+def _has_clip_control() -> bool:
+    """Whether the current context has ``glClipControl`` (core in GL 4.5)."""
+    major = int(GL.glGetIntegerv(GL.GL_MAJOR_VERSION))
+    minor = int(GL.glGetIntegerv(GL.GL_MINOR_VERSION))
+    return (major, minor) >= (4, 5) and bool(GL.glClipControl)
 
 
 def _texel_axes(proj: np.ndarray) -> tuple[float, float]:
