@@ -90,7 +90,7 @@ def run(quick: bool, repeats: int) -> None:
         "",
         *notes,
         "",
-        f"Machine: {info}; {C.code_state()}. Run time {elapsed:.0f} s.",
+        f"Machine: {info}. Run time {elapsed:.0f} s.",
         "",
     ])
     C.finish(C.results_dir(quick), "corpus", md, csv_rows, [table], notes, elapsed)
