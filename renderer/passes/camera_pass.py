@@ -7,7 +7,7 @@ back to front, without writing depth or visibility.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +67,7 @@ class CameraPass:
         # repeated request (the same plan and request objects) reuses it and its defines.
         self._frame: tuple[RenderPlan, RenderParams, tuple, _FrameState] | None = None
         self._reversed_z: bool | None = None  # known once a context is current
+        self._clip_control: Callable[[int, int], None] | None = None
 
     @property
     def reversed_z(self) -> bool:
@@ -74,7 +75,8 @@ class CameraPass:
         context has ``glClipControl`` (GL 4.5, or ``ARB_clip_control``); the standard depth
         range otherwise."""
         if self._reversed_z is None:
-            self._reversed_z = _has_clip_control()
+            self._clip_control = _clip_control()
+            self._reversed_z = self._clip_control is not None
         return self._reversed_z
 
     def _framebuffer(self, width: int, height: int, vis_targets: int) -> Framebuffer:
@@ -123,11 +125,13 @@ class CameraPass:
         if not reversed_z:
             self._draw(gpu, plan, maps, params, vis_targets)
             return
-        GL.glClipControl(GL.GL_LOWER_LEFT, GL.GL_ZERO_TO_ONE)
+        clip_control = self._clip_control
+        assert clip_control is not None  # reversed_z says so
+        clip_control(GL.GL_LOWER_LEFT, GL.GL_ZERO_TO_ONE)
         try:
             self._draw(gpu, plan, maps, params, vis_targets)
         finally:  # the light pass and everything else draw with GL's default depth range
-            GL.glClipControl(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
+            clip_control(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
 
     def _draw(self, gpu: GpuScene, plan: RenderPlan, maps: list[ShadowMap],
               params: RenderParams, vis_targets: int) -> None:
@@ -344,11 +348,27 @@ class CameraPass:
             self._white = 0
 
 
-def _has_clip_control() -> bool:
-    """Whether the current context has ``glClipControl`` (core in GL 4.5)."""
+def _clip_control() -> Callable[[int, int], None] | None:
+    """The current context's ``glClipControl`` (core in GL 4.5, else ``ARB_clip_control``), or
+    None where it has none.
+
+    Under OSMesa (Mesa 22.3, a 4.5 context) PyOpenGL's core ``GL.glClipControl`` comes out
+    unbound while the extension module's, looked up through ``OSMesaGetProcAddress``, is the
+    same entry point and works: either is taken.
+    """
+    from OpenGL.GL.ARB import clip_control
+
     major = int(GL.glGetIntegerv(GL.GL_MAJOR_VERSION))
     minor = int(GL.glGetIntegerv(GL.GL_MINOR_VERSION))
-    return (major, minor) >= (4, 5) and bool(GL.glClipControl)
+    if (major, minor) < (4, 5):
+        count = int(GL.glGetIntegerv(GL.GL_NUM_EXTENSIONS))
+        names = {GL.glGetStringi(GL.GL_EXTENSIONS, i) for i in range(count)}
+        if b"GL_ARB_clip_control" not in names:
+            return None
+    for function in (GL.glClipControl, clip_control.glClipControl):
+        if bool(function):
+            return function
+    return None
 
 
 def _texel_axes(proj: np.ndarray) -> tuple[float, float]:
