@@ -190,7 +190,7 @@ def test_standard_depth_range_where_clip_control_is_missing(renderer, demo):
     params = RenderParams(outputs=["color", "visibility", "depth"])
     reversed_ = renderer.render(demo, params)
     with Renderer() as plain:
-        plain.camera_pass._reversed_z = False  # as on a context without GL 4.5
+        plain.camera_pass._clip_control = None  # as on a context without GL 4.5
         standard = plain.render(demo, params)
         assert not plain.camera_pass.reversed_z
     assert renderer.camera_pass.reversed_z

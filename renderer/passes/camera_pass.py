@@ -66,18 +66,17 @@ class CameraPass:
         # The last frame's state, by (plan, request, maps' plans, visibility targets): a
         # repeated request (the same plan and request objects) reuses it and its defines.
         self._frame: tuple[RenderPlan, RenderParams, tuple, _FrameState] | None = None
-        self._reversed_z: bool | None = None  # known once a context is current
-        self._clip_control: Callable[[int, int], None] | None = None
+        # glClipControl, None where the context has none; looked up once a context is current.
+        self._clip_control: Callable[[int, int], None] | None | _Unresolved = _UNRESOLVED
 
     @property
     def reversed_z(self) -> bool:
         """Whether the camera pass draws with reversed depth (:data:`REVERSED_Z`): where the
         context has ``glClipControl`` (GL 4.5, or ``ARB_clip_control``); the standard depth
         range otherwise."""
-        if self._reversed_z is None:
+        if isinstance(self._clip_control, _Unresolved):
             self._clip_control = _clip_control()
-            self._reversed_z = self._clip_control is not None
-        return self._reversed_z
+        return self._clip_control is not None
 
     def _framebuffer(self, width: int, height: int, vis_targets: int) -> Framebuffer:
         key = (width, height, vis_targets)
@@ -116,22 +115,20 @@ class CameraPass:
         GL.glClearBufferfv(GL.GL_COLOR, 0, bg)
         for i in range(vis_targets):
             GL.glClearBufferfv(GL.GL_COLOR, 1 + i, np.full(4, np.nan, np.float32))
-        reversed_z = self.reversed_z
+        reversed_z = self.reversed_z  # resolves self._clip_control
         GL.glClearBufferfv(GL.GL_DEPTH, 0, np.full(1, 0.0 if reversed_z else 1.0, np.float32))
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_GREATER if reversed_z else GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
         GL.glDisable(GL.GL_BLEND)
-        if not reversed_z:
-            self._draw(gpu, plan, maps, params, vis_targets)
-            return
         clip_control = self._clip_control
-        assert clip_control is not None  # reversed_z says so
-        clip_control(GL.GL_LOWER_LEFT, GL.GL_ZERO_TO_ONE)
+        if callable(clip_control):
+            clip_control(GL.GL_LOWER_LEFT, GL.GL_ZERO_TO_ONE)
         try:
             self._draw(gpu, plan, maps, params, vis_targets)
         finally:  # the light pass and everything else draw with GL's default depth range
-            clip_control(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
+            if callable(clip_control):
+                clip_control(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
 
     def _draw(self, gpu: GpuScene, plan: RenderPlan, maps: list[ShadowMap],
               params: RenderParams, vis_targets: int) -> None:
@@ -346,6 +343,13 @@ class CameraPass:
         if self._white:
             GL.glDeleteTextures([self._white])
             self._white = 0
+
+
+class _Unresolved:
+    """Marks a lookup not made yet (None is a result: the context has no such function)."""
+
+
+_UNRESOLVED = _Unresolved()
 
 
 def _clip_control() -> Callable[[int, int], None] | None:
