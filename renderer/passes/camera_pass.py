@@ -215,6 +215,7 @@ class CameraPass:
             frame = last[3]
             frame.maps = maps
             frame.ready = set()
+            frame._uniforms = None  # worked out again only where a program needs them
             if frame.bare is not None:
                 frame.bare.ready = set()
             return frame
@@ -405,6 +406,8 @@ class _FrameState:
         self.ready: set[int] = set()  # programs whose frame uniforms are set
         self.bare: _FrameState | None = None  # without_maps()
         self._variants: dict[int, tuple[GpuPrimitive, dict[str, int | bool | str], tuple]] = {}
+        # The frame uniforms and the texture units they were worked out for (frame_uniforms).
+        self._uniforms: tuple[tuple[int, ...], list[tuple[str, np.ndarray]]] | None = None
         lights = [lp.light for lp in plan.lights]
         self.n_2d = sum(1 for m in maps if _family(m) == "2d")
         self.n_cube = sum(1 for m in maps if _family(m) == "cube")
@@ -492,55 +495,68 @@ class _FrameState:
         return d
 
     def set_frame_uniforms(self, prog: Program, units: list[int]) -> None:
+        """Set the frame's uniforms on ``prog`` (bound); every program of the frame takes the
+        same values, worked out once (:meth:`frame_uniforms`)."""
+        for name, value in self.frame_uniforms(units):
+            prog.set(name, value)
+
+    def frame_uniforms(self, units: list[int]) -> list[tuple[str, np.ndarray]]:
+        """The frame's uniforms as (name, value) pairs, the maps bound to ``units``: computed
+        on the first program of the frame and reused by the others (each variant of a frame
+        declares the same frame uniforms, but the map ones without maps)."""
+        key = tuple(units)
+        if self._uniforms is not None and self._uniforms[0] == key:
+            return self._uniforms[1]
+        out: list[tuple[str, object]] = []
         p = self.params
-        prog.set("u_view_proj", self.view_proj)
-        prog.set("u_ambient", p.ambient)
+        out.append(("u_view_proj", self.view_proj))
+        out.append(("u_ambient", p.ambient))
         lights = self.plan.lights
         if lights:  # without lights only the ambient term remains
-            prog.set("u_camera_position", self.eye)
-            prog.set("u_specular", p.specular)
-            prog.set("u_shininess", p.shininess)
+            out.append(("u_camera_position", self.eye))
+            out.append(("u_specular", p.specular))
+            out.append(("u_shininess", p.shininess))
             origin = self.plan.origin
             if self.has_direction:
-                prog.set("u_light_direction", [lp.light.direction for lp in lights])
-            prog.set("u_light_radiance",
-                     [np.asarray(lp.light.color) * lp.light.intensity for lp in lights])
+                out.append(("u_light_direction", [lp.light.direction for lp in lights]))
+            out.append(("u_light_radiance",
+                        [np.asarray(lp.light.color) * lp.light.intensity for lp in lights]))
             if self.has_positional:
-                prog.set("u_light_position", [lp.light.position - origin for lp in lights])
-                prog.set("u_light_range", [lp.light.range or 0.0 for lp in lights])
+                out.append(("u_light_position", [lp.light.position - origin for lp in lights]))
+                out.append(("u_light_range", [lp.light.range or 0.0 for lp in lights]))
             if self.has_spot:
-                prog.set("u_light_cone", [(np.cos(lp.light.outer_cone), np.cos(lp.light.inner_cone))
-                                          for lp in lights])
-        if not self.maps:
-            return
-        b = p.shadows.bias
-        prog.set("u_bias", (b.constant, b.slope, b.slope_max, b.normal_offset))
-        prog.set("u_bias_steps", b.quantisation_steps)
-        two_d = [m for m in self.maps if _family(m) == "2d"]
-        cubes = [m for m in self.maps if _family(m) == "cube"]
-        cascaded = [m for m in self.maps if _family(m) == "csm"]
-        if cascaded:
-            self._set_cascade_uniforms(prog, units, cascaded)
-        if two_d:
-            prog.set("u_map2d", [units[self.maps.index(m)] for m in two_d])
-            prog.set("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d])
-            prog.set("u_map2d_range",
-                     [(m.plan.near, m.plan.far, m.step, m.plan.map_size) for m in two_d])
-            prog.set("u_map2d_texel", [m.plan.texel for m in two_d])
-            prog.set("u_map2d_axes", [_texel_axes(m.plan.proj) for m in two_d])
-        if cubes:
-            prog.set("u_mapcube", [units[self.maps.index(m)] for m in cubes])
-            prog.set("u_mapcube_position", [m.plan.position for m in cubes])
-            prog.set("u_mapcube_range",
-                     [(m.plan.near, m.plan.far, m.plan.map_size, m.step) for m in cubes])
+                out.append(("u_light_cone", [(np.cos(lp.light.outer_cone),
+                                              np.cos(lp.light.inner_cone)) for lp in lights]))
+        if self.maps:
+            b = p.shadows.bias
+            out.append(("u_bias", (b.constant, b.slope, b.slope_max, b.normal_offset)))
+            out.append(("u_bias_steps", b.quantisation_steps))
+            two_d = [m for m in self.maps if _family(m) == "2d"]
+            cubes = [m for m in self.maps if _family(m) == "cube"]
+            cascaded = [m for m in self.maps if _family(m) == "csm"]
+            if cascaded:
+                out += self._cascade_uniforms(units, cascaded)
+            if two_d:
+                out.append(("u_map2d", [units[self.maps.index(m)] for m in two_d]))
+                out.append(("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d]))
+                out.append(("u_map2d_range", [(m.plan.near, m.plan.far, m.step, m.plan.map_size)
+                                              for m in two_d]))
+                out.append(("u_map2d_texel", [m.plan.texel for m in two_d]))
+                out.append(("u_map2d_axes", [_texel_axes(m.plan.proj) for m in two_d]))
+            if cubes:
+                out.append(("u_mapcube", [units[self.maps.index(m)] for m in cubes]))
+                out.append(("u_mapcube_position", [m.plan.position for m in cubes]))
+                out.append(("u_mapcube_range", [(m.plan.near, m.plan.far, m.plan.map_size, m.step)
+                                                for m in cubes]))
+        # As arrays once (Program.set takes them as they are, without converting each time).
+        values = [(name, np.asarray(v)) for name, v in out]
+        self._uniforms = (key, values)
+        return values
 
-    def _set_cascade_uniforms(self, prog: Program, units: list[int],
-                              cascaded: list[ShadowMap]) -> None:
+    def _cascade_uniforms(self, units: list[int], cascaded: list[ShadowMap]
+                          ) -> list[tuple[str, object]]:
         """Per cascaded light, its array texture and size; per cascade (``slot * MAX_CASCADES
         + k``, unused entries left as they are), its matrices, depth range, texel and split."""
-        prog.set("u_mapcsm", [units[self.maps.index(m)] for m in cascaded])
-        prog.set("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded])
-        prog.set("u_camera_forward", -self.plan.camera.pose[:3, 2])
         n = len(cascaded) * MAX_CASCADES
         matrix = np.tile(np.eye(4), (n, 1, 1))
         view = np.tile(np.eye(4), (n, 1, 1))
@@ -557,9 +573,8 @@ class _FrameState:
                 texel[j] = c.texel[0]
                 axes[j] = _texel_axes(c.proj)
                 split[j] = (min(c.split[1], 3e38), c.blend)
-        prog.set("u_csm_matrix", list(matrix))
-        prog.set("u_csm_view", list(view))
-        prog.set("u_csm_range", list(rng))
-        prog.set("u_csm_texel", list(texel))
-        prog.set("u_csm_axes", list(axes))
-        prog.set("u_csm_split", list(split))
+        return [("u_mapcsm", [units[self.maps.index(m)] for m in cascaded]),
+                ("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded]),
+                ("u_camera_forward", -self.plan.camera.pose[:3, 2]),
+                ("u_csm_matrix", matrix), ("u_csm_view", view), ("u_csm_range", rng),
+                ("u_csm_texel", texel), ("u_csm_axes", axes), ("u_csm_split", split)]
