@@ -501,6 +501,9 @@ class ProgramCache:
         Reads a shader file by name; the ``shaders`` package by default.
     """
 
+    #: What :meth:`get` builds (a subclass may change how uniforms are set).
+    program_type: type[Program] = Program
+
     def __init__(self, loader: Loader = shader_text) -> None:
         self._programs: dict[tuple, Program] = {}
         self._seen: dict[tuple, Program] = {}  # by the defines' items as given
@@ -532,7 +535,7 @@ class ProgramCache:
         key = (vertex, fragment, normalize_defines(defines))
         prog = self._programs.get(key)
         if prog is None:
-            prog = self._programs[key] = Program(*key, loader=self._loader)
+            prog = self._programs[key] = self.program_type(*key, loader=self._loader)
         self._seen[fast] = prog
         return prog
 
