@@ -331,18 +331,23 @@ class Timing:
 
 
 def time_interleaved(calls: dict[str, Callable[[], object]], repeats: int = DEFAULT_REPEATS,
-                     warmup: int = 1) -> dict[str, Timing]:
+                     warmup: int = 1, rotate: bool = False) -> dict[str, Timing]:
     """Warm every call up, then time them in turn (A B A B ...) so drift hits all alike.
 
     The first call of a configuration compiles shaders and allocates maps; ``warmup`` calls of
-    each are made and discarded first.
+    each are made and discarded first. With ``rotate``, repeat k starts at the k-th call (A B C,
+    B C A, C A B, ...): a call that runs right after one drawing the same plan finds its data in
+    the CPU's caches and runs a few per cent faster, and rotating gives every call each place
+    after every other equally often.
     """
     for fn in calls.values():
         for _ in range(warmup):
             fn()
     out = {name: Timing() for name in calls}
-    for _ in range(repeats):
-        for name, fn in calls.items():
+    items = list(calls.items())
+    for k in range(repeats):
+        turn = items[k % len(items):] + items[:k % len(items)] if rotate else items
+        for name, fn in turn:
             t = time.perf_counter()
             result = fn()
             out[name].add(time.perf_counter() - t, result)

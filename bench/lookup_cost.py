@@ -148,7 +148,7 @@ def run(quick: bool, repeats: int) -> None:
                 return r.render(bs.scene, params[arm])
 
         t = C.time_interleaved({arm: (lambda arm=arm: call(arm)) for arm in ARMS}, repeats,
-                               warmup=2)
+                               warmup=2, rotate=True)
         ms = {arm: t[arm].ms("camera") for arm in ARMS}
         extra = ms["default"] - ms["unshadowed"]
         parts = {label: ms[a] - ms[b] for a, b, label in STEPS}
@@ -171,7 +171,7 @@ def run(quick: bool, repeats: int) -> None:
                     with programs(r, caches[arm]):
                         return r.render(bs.scene, p)
                 calls[f"{size} {arm}"] = sized
-        t = C.time_interleaved(calls, repeats, warmup=2)
+        t = C.time_interleaved(calls, repeats, warmup=2, rotate=True)
         auto = r.render(bs.scene, bs.params()).plan["lights"][0]["map_size"]
         reads = [t[f"{s} one texel"].ms("camera") - t[f"{s} no reads"].ms("camera")
                  for s in sizes]
@@ -204,7 +204,9 @@ def run(quick: bool, repeats: int) -> None:
     md = "\n".join([
         "# Where the shadow lookup's time goes", "",
         f"640x480, default settings, the camera pass alone (`camera` stage), medians of "
-        f"{repeats} interleaved calls after two warm-ups; the light pass drawn once and cached. "
+        f"{repeats} interleaved calls after two warm-ups, each repeat starting one arm later "
+        "(every arm runs after every other equally often); the light pass drawn once and "
+        "cached. "
         "Each column drops a part of the lookup (see `bench/lookup_cost.py`): *no reads* "
         "returns 1 after the lookup variant's draws and varyings, *one texel* reads one texel "
         "and compares it with the interpolated depth, *one gather* reads the 2×2 texels and "
