@@ -112,6 +112,13 @@ def programs(r: Renderer, cache: ProgramCache | None) -> Iterator[None]:
         r.camera_pass.programs = own
 
 
+def render_with(r: Renderer, cache: ProgramCache | None, scene, params: RenderParams
+                ):  # type: ignore[no-untyped-def]
+    """``r.render(scene, params)`` with the camera pass drawn by ``cache``'s programs."""
+    with programs(r, cache):
+        return r.render(scene, params)
+
+
 def two_d_only(result) -> bool:  # type: ignore[no-untyped-def]
     """Every shadowed light of the plan looked up in one 2D map (no cube, no cascades)."""
     kinds = [lp["shadow_map"] for lp in result.plan["lights"] if lp.get("shadow_map")]
@@ -143,12 +150,10 @@ def run(quick: bool, repeats: int) -> None:
             **{arm: default for arm in PROBES},
         }
 
-        def call(arm: str, bs=bs, params=params):  # type: ignore[no-untyped-def]
-            with programs(r, caches.get(arm)):
-                return r.render(bs.scene, params[arm])
-
-        t = C.time_interleaved({arm: (lambda arm=arm: call(arm)) for arm in ARMS}, repeats,
-                               warmup=2, rotate=True)
+        t = C.time_interleaved(
+            {arm: (lambda arm=arm, scene=scene, params=params:
+                   render_with(r, caches.get(arm), scene, params[arm])) for arm in ARMS},
+            repeats, warmup=2, rotate=True)
         ms = {arm: t[arm].ms("camera") for arm in ARMS}
         extra = ms["default"] - ms["unshadowed"]
         parts = {label: ms[a] - ms[b] for a, b, label in STEPS}
@@ -167,10 +172,8 @@ def run(quick: bool, repeats: int) -> None:
         for size in sizes:
             p = bs.params(shadows={"map_size": size})
             for arm in ("no reads", "one texel"):
-                def sized(arm=arm, p=p, bs=bs):  # type: ignore[no-untyped-def]
-                    with programs(r, caches[arm]):
-                        return r.render(bs.scene, p)
-                calls[f"{size} {arm}"] = sized
+                calls[f"{size} {arm}"] = (lambda arm=arm, p=p, bs=bs:
+                                          render_with(r, caches[arm], bs.scene, p))
         t = C.time_interleaved(calls, repeats, warmup=2, rotate=True)
         auto = r.render(bs.scene, bs.params()).plan["lights"][0]["map_size"]
         reads = [t[f"{s} one texel"].ms("camera") - t[f"{s} no reads"].ms("camera")

@@ -215,7 +215,6 @@ class CameraPass:
             frame = last[3]
             frame.maps = maps
             frame.ready = set()
-            frame._uniforms = None  # worked out again only where a program needs them
             if frame.bare is not None:
                 frame.bare.ready = set()
             return frame
