@@ -10,7 +10,8 @@ Per scene, at 640x480 with default settings, frames interleaved:
 - **floor** (the target's): the GL work alone, with nothing else in the way: per map our plan
   renders (each cascade, each cube face), one depth-only draw through plain PyOpenGL of exactly
   the casters the plan draws (every instance's triangles pre-transformed into one vertex
-  buffer), into a depth texture of the plan's map size; then our own camera pass with no shadow
+  buffer), without the far faces of the casters our pass draws one-sided (one draw per culled
+  side), into a depth texture of the plan's map size; then our own camera pass with no shadow
   code (the unshadowed variant: the same lights, textures and shading) and its read-back,
   replayed as the GL calls one render made (:class:`ShadingReplay`). A ``glFinish`` before, the
   read-back ends it: no Python between the calls but the calls;
@@ -111,14 +112,16 @@ class Floor:
         self.camera_prog = shaders.compileProgram(
             shaders.compileShader(CAMERA_VS, GL.GL_VERTEX_SHADER),
             shaders.compileShader(CAMERA_FS, GL.GL_FRAGMENT_SHADER))
-        # Every map the plan renders: (size, view-projection, caster ranges, depth bits).
+        # Every map the plan renders: (size, view-projection, caster ranges by the faces they
+        # leave out, depth bits).
+        mirrored = np.array([np.linalg.det(i.matrix[:3, :3]) < 0 for i in scene.instances])
         self.maps = []
         for lp in plan.lights:
             for m in lp.maps:  # each cascade, or the light's one map
                 views = [m.face_views[f] for f in m.faces] if m.kind == "cube" else [m.view]
                 for view in views:
                     self.maps.append((m.map_size, (m.proj @ view).astype(np.float32),
-                                      self._ranges(m.casters), lp.depth_bits or 32))
+                                      self._sided_ranges(m, mirrored), lp.depth_bits or 32))
         # One depth texture per map, as ours has (a cube face, a cascade each): maps sharing
         # one target would let the driver drop all but the last (a clear discards the work
         # queued for the target before it).
@@ -136,6 +139,18 @@ class Floor:
         self.light_dir = (np.asarray(d, float) / max(np.linalg.norm(d), 1e-30)).astype(np.float32)
         self.fbo, self.color, self.depth_rb = self._camera_target()
         self.pixels = np.empty((self.height, self.width, 4), np.uint8)
+
+    def _sided_ranges(self, m, mirrored: np.ndarray) -> list[tuple[int, tuple]]:
+        """The casters of map ``m`` as (face to cull or 0, ranges), culling the faces our light
+        pass leaves out (``LightShadow.one_sided``). The floor's triangles are pre-transformed,
+        so a mirrored instance's are wound the other way round."""
+        casters = np.asarray(m.casters, np.int64)
+        sided = m.one_sided if m.one_sided.size else np.zeros(len(casters), np.int8)
+        sided = np.where(mirrored[casters], -sided, sided)
+        GL = self.GL
+        return [(face, self._ranges(casters[sided == side]))
+                for side, face in ((0, 0), (1, GL.GL_BACK), (-1, GL.GL_FRONT))
+                if np.any(sided == side)]
 
     def _ranges(self, indices) -> tuple[np.ndarray, np.ndarray, int]:
         idx = np.asarray(indices, np.int64)
@@ -187,13 +202,18 @@ class Floor:
         GL.glBindVertexArray(self.vao)
         GL.glUseProgram(self.depth_prog)
         loc = GL.glGetUniformLocation(self.depth_prog, "u_mvp")
-        for k, (size, mvp, (first, count, n), _) in enumerate(self.maps):
+        for k, (size, mvp, sides, _) in enumerate(self.maps):
             GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.textures[k][0])
             GL.glViewport(0, 0, size, size)
             GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
             GL.glUniformMatrix4fv(loc, 1, GL.GL_TRUE, mvp)
-            if n:
+            for face, (first, count, n) in sides:
+                if face:
+                    GL.glEnable(GL.GL_CULL_FACE)
+                    GL.glCullFace(face)
                 GL.glMultiDrawArrays(GL.GL_TRIANGLES, first, count, n)
+                if face:
+                    GL.glDisable(GL.GL_CULL_FACE)
 
     def camera(self) -> np.ndarray:
         """The untextured Lambert draw and the read-back."""

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from maps import assert_same_but_silhouettes
 from shadowmap.renderer import RenderParams, Scene
 from shadowmap.renderer import testing as T
 from shadowmap.renderer.scene import Instance, Primitive, instance_arrays, world_bounds
@@ -100,8 +101,9 @@ def test_culled_instances_render_like_the_unculled_frame(renderer, boxes, monkey
     np.testing.assert_array_equal(on.visibility, off.visibility)
     np.testing.assert_array_equal(on.depth, off.depth)
     assert (on.visibility == 0).sum() > 1000  # shadows to compare
+    # The closed boxes' far faces are left out with optimize: the maps agree but at silhouettes.
     for a, b in zip(on.light_depth, off.light_depth, strict=True):
-        np.testing.assert_array_equal(a.depth, b.depth)
+        assert_same_but_silhouettes(a.depth, b.depth)
 
 
 def test_one_call_per_run_draws_the_same_frame(renderer, boxes):

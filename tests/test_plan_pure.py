@@ -249,7 +249,8 @@ def test_each_light_kind_gets_its_fit(light_params, kind, method):
     lp = make_plan(*args).lights[0]
     assert lp.kind == kind and lp.reason is None
     assert set(lp.to_dict()) == {"type", "shadow_map", "map_size", "casters", "skipped", "near",
-                                 "far", "depth_bits"} | ({"faces"} if kind == "cube" else set())
+                                 "far", "depth_bits", "one_sided"} | (
+                                     {"faces"} if kind == "cube" else set())
     assert lp.depth_bits in (16, 32)
     assert 0 < lp.near < lp.far or kind == "ortho"
     assert lp.map_size >= 256 and lp.map_size & (lp.map_size - 1) == 0

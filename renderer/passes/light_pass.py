@@ -134,6 +134,10 @@ class LightPass:
         self._taken: set[int] = set()  # framebuffers the current frame draws or samples
         # map_key() by light plan (see _map_key); the plan is held, so its id stays its own.
         self._keys: dict[int, tuple[LightShadow, tuple, str]] = {}
+        # Per map plan with one-sided casters, by id: (plan, its upload, the face classes by
+        # scene instance). The same array for a repeated plan lets GpuScene.groups() reuse its
+        # grouping.
+        self._sides: dict[int, tuple[LightShadow, GpuScene, np.ndarray]] = {}
         # An evicted map's framebuffer goes back to the pool: the next map of its shape reuses it.
         self.cache: BoundedCache[tuple[tuple, Framebuffer]] = BoundedCache(
             cache_entries, cache_bytes, size=lambda e: e[1].nbytes, on_evict=self._unkeep)
@@ -211,7 +215,9 @@ class LightPass:
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
         GL.glDisable(GL.GL_BLEND)
-        GL.glDisable(GL.GL_CULL_FACE)  # both faces cast: thin and open geometry must not leak
+        # Both faces cast (thin and open geometry must not leak), but where the plan leaves the
+        # far side of a closed caster out (LightShadow.one_sided; _draw_casters culls it).
+        GL.glDisable(GL.GL_CULL_FACE)
         for lp in plans:
             if lp.kind is None:
                 continue
@@ -234,7 +240,7 @@ class LightPass:
                 targets = [(("face", f), lp, lp.face_views[f]) for f in lp.faces]
             else:
                 targets = [(None, lp, lp.view)]
-            groups = gpu.groups(lp.casters)  # once per light, for every face
+            groups = self._groups(gpu, lp)  # once per light, for every face
             step = ShadowMap(lp, fb, shadows.encoding).step
             for where, part, view in targets:
                 if where is None:
@@ -247,7 +253,7 @@ class LightPass:
                 GL.glClearDepth(1.0)
                 GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
                 if part is not lp:  # a cascade draws its own casters
-                    self._draw_casters(gpu, gpu.groups(part.casters), part, view, shadows,
+                    self._draw_casters(gpu, self._groups(gpu, part), part, view, shadows,
                                        step)
                 else:
                     self._draw_casters(gpu, groups, part, view, shadows, step)
@@ -259,6 +265,21 @@ class LightPass:
         self._trim(taken)
         return maps
 
+    def _groups(self, gpu: GpuScene, m: LightShadow) -> list[tuple[int, int, np.ndarray]]:
+        """The casters of map ``m`` by GPU primitive and by the faces they leave out: (GPU
+        primitive, class, slots), class 0 drawing every face, 1 leaving out GL's back faces, 2
+        its front faces (``m.one_sided``)."""
+        if not m.one_sided.size:
+            return gpu.groups(m.casters)
+        hit = self._sides.get(id(m))
+        if hit is None or hit[0] is not m or hit[1] is not gpu:
+            classes = np.zeros(len(gpu.prim_of), np.intp)
+            classes[np.asarray(m.casters, np.intp)] = np.choose(m.one_sided + 1, (2, 0, 1))
+            hit = self._sides[id(m)] = (m, gpu, classes)
+            while len(self._sides) > 4 * max(self.cache.max_entries, 1):
+                self._sides.pop(next(iter(self._sides)))
+        return gpu.groups(m.casters, hit[2], classes=3)
+
     def _draw_casters(self, gpu: GpuScene, groups: list[tuple[int, int, np.ndarray]],
                       lp: LightShadow, view: np.ndarray, shadows: ShadowParams,
                       step: float) -> None:
@@ -268,7 +289,15 @@ class LightPass:
         perspective = lp.kind != "ortho"
         po_factor, po_units = shadows.bias.polygon_offset
         polygon_offset = bool(po_factor or po_units)
-        for p, _, slots in groups:
+        culled = 0
+        for p, faces, slots in groups:
+            if faces != culled:  # see _groups(): which faces this group leaves out
+                if faces:
+                    GL.glEnable(GL.GL_CULL_FACE)
+                    GL.glCullFace(GL.GL_BACK if faces == 1 else GL.GL_FRONT)
+                else:
+                    GL.glDisable(GL.GL_CULL_FACE)
+                culled = faces
             gp = gpu.primitives[p]
             mat = gp.material
             cutoff = mat.shadow_cutoff
@@ -301,6 +330,8 @@ class LightPass:
                 prog.set("u_base_alpha", float(mat.base_color[3]))
                 prog.set("u_alpha_cutoff", cutoff)
             gp.draw(None if len(slots) == len(gp.instances) else slots)
+        if culled:
+            GL.glDisable(GL.GL_CULL_FACE)
 
     def release(self) -> None:
         self.cache.clear()  # back into the pool, released below

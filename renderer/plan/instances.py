@@ -40,6 +40,8 @@ if TYPE_CHECKING:  # the scene module is the planner's input: types only
 _PLANES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 # (normals, shares) of a primitive's large flat patches (:func:`primitive_patches`), same way.
 _PATCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# +1, -1 or 0 per primitive (:func:`primitive_closure`), same way.
+_CLOSURE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 # SceneArrays by scene, same reasoning. One lock for both maps: the service may plan on more than
 # one thread, and a weak mapping is not safe to grow from two at once.
 _SCENES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -79,6 +81,60 @@ def primitive_plane(prim: Primitive) -> tuple[np.ndarray, np.ndarray] | None:
             result = (_frozen(vt[-1]), _frozen(centre))
     with _LOCK:
         _PLANES[prim] = result
+    return result
+
+
+def primitive_closure(prim: Primitive) -> int:
+    """Whether a primitive's triangles close a surface, and which way they wind around it.
+
+    Vertices at bitwise equal positions (after ``-0.0`` becomes ``0.0``) are one vertex: a
+    glTF mesh splits its vertices along UV seams and normal creases, and those copies project
+    to the same window coordinates, so the rasterizer sees the surface closed across them.
+    Triangles with a repeated vertex are left out (they cover no texel).
+
+    The surface is closed when every directed edge occurs once and its reverse once: each edge
+    joins two triangles wound opposite ways along it. Then a ray from outside first enters it
+    through a face turned toward the ray's origin (outward winding), so a light outside the
+    surface sees only those faces first; the faces turned away lie behind them and change no
+    texel of a depth map (:func:`.plan.one_sided_casters`).
+
+    Returns
+    -------
+    int
+        +1: closed, counter-clockwise seen from outside (positive signed volume); -1: closed,
+        wound the other way (a negative one); 0: open, not consistently wound, or empty.
+        Cached per primitive.
+    """
+    with _LOCK:
+        if prim in _CLOSURE:
+            return int(_CLOSURE[prim])
+    result = 0
+    p = np.ascontiguousarray(prim.positions, np.float32) + np.float32(0.0)  # -0.0 -> 0.0
+    f = np.asarray(prim.indices, np.intp).reshape(-1, 3)
+    if len(f) and len(p):
+        # Weld by the positions' bits: sorted by (x, y) as one 64-bit key, then z.
+        xy = np.ascontiguousarray(p[:, :2]).view(np.uint64).reshape(-1)
+        z = p[:, 2].view(np.uint32)
+        order = np.lexsort((z, xy))
+        new = np.ones(len(p), bool)
+        new[1:] = (xy[order[1:]] != xy[order[:-1]]) | (z[order[1:]] != z[order[:-1]])
+        weld = np.empty(len(p), np.int64)
+        weld[order] = np.cumsum(new) - 1
+        w = weld[f]  # (F, 3) welded vertex ids
+        w = w[(w[:, 0] != w[:, 1]) & (w[:, 1] != w[:, 2]) & (w[:, 2] != w[:, 0])]
+        if len(w):
+            n = int(weld.max()) + 1
+            a, b = w, np.roll(w, -1, axis=1)
+            forward = np.sort((a * n + b).reshape(-1))
+            if not np.any(forward[1:] == forward[:-1]) and np.array_equal(
+                    forward, np.sort((b * n + a).reshape(-1))):
+                # Signed volume about the vertices' centre: its sign is the winding's.
+                q = p[order[new]].astype(np.float64)
+                q -= q.mean(axis=0)
+                volume = float(np.einsum("ij,ij->", q[w[:, 0]], np.cross(q[w[:, 1]], q[w[:, 2]])))
+                result = -1 if volume < 0 else 1
+    with _LOCK:
+        _CLOSURE[prim] = result
     return result
 
 
@@ -247,6 +303,7 @@ class SceneArrays:
     _source: tuple = field(repr=False)
     _relative: dict = field(default_factory=dict, repr=False)
     _patches: dict = field(default_factory=dict, repr=False)
+    _closure: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def read(cls, scene: Scene) -> SceneArrays:
@@ -311,6 +368,33 @@ class SceneArrays:
         out = (_frozen(start), _frozen(np.ascontiguousarray(normal, np.float64)))
         with _LOCK:
             self._patches["all"] = out
+        return out
+
+    def closure(self) -> np.ndarray:
+        """Per instance, how its light-pass draw may leave out faces: the winding of its
+        primitive's closed surface (:func:`primitive_closure`), +1 or -1, or 0 where every face
+        is drawn (an open surface, or a material whose shadow is cut out by its texture's alpha:
+        a face turned toward the light may have holes that the faces behind fill). Computed on
+        first use, once per primitive, and kept.
+
+        Returns
+        -------
+        ndarray, shape (N,), int8
+        """
+        with _LOCK:
+            hit = self._closure.get("all")
+        if hit is not None:
+            return hit
+        primitives = self._source[2]
+        per_prim = np.zeros(len(primitives), np.int8)
+        for p in np.unique(self.primitive).tolist():
+            prim = primitives[p]
+            mat = prim.material
+            if mat.shadow_cutoff is None or mat.texture is None:
+                per_prim[p] = primitive_closure(prim)
+        out = _frozen(per_prim[self.primitive])
+        with _LOCK:
+            self._closure["all"] = out
         return out
 
     def patch_normals(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

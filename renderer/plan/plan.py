@@ -94,6 +94,10 @@ class LightShadow:
         Bits of the light's depth texture (every cascade's: one array texture) with the
         ``depth`` encoding, 16 or 32 (:func:`depth_bits`); 0 for the byte encodings and without
         a pass.
+    one_sided : ndarray, shape (len(casters),), int8
+        Per caster, the faces its draw leaves out (:func:`one_sided_casters`): +1 those wound
+        clockwise in the map (GL's back faces), -1 the counter-clockwise ones, 0 none; empty
+        when no caster leaves any out.
     """
 
     index: int
@@ -118,6 +122,7 @@ class LightShadow:
     texel_pixels: float = 0.0
     needed: float = 0.0
     depth_bits: int = 0
+    one_sided: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
 
     @property
     def maps(self) -> tuple[LightShadow, ...]:
@@ -158,6 +163,7 @@ class LightShadow:
             skipped=dict(self.skipped),
             near=self.near,
             far=self.far,
+            one_sided=int(np.count_nonzero(self.one_sided)),
         )
         if self.depth_bits:
             d["depth_bits"] = self.depth_bits
@@ -170,10 +176,11 @@ class LightShadow:
                 cascades=[{"split": [c.split[0], c.split[1]], "blend": c.blend,
                            "map_size": c.map_size, "texel_pixels": c.texel_pixels,
                            "casters": len(c.casters),
+                           "one_sided": int(np.count_nonzero(c.one_sided)),
                            "skipped": dict(c.skipped), "near": c.near, "far": c.far}
                           for c in self.cascades],
             )
-            del d["skipped"], d["near"], d["far"]
+            del d["skipped"], d["near"], d["far"], d["one_sided"]
         return d
 
 
@@ -400,6 +407,9 @@ def _cascade(ctx: PlanContext, planned: list[LightShadow]) -> list[LightShadow]:
         fits = plan_cascades(ctx, lp.light, lp.position, single)
         if fits:
             lp = LightShadow.cascaded(lp.index, lp.light, lp.position, fits)
+            maps = tuple(dataclasses.replace(c, one_sided=one_sided_casters(ctx, c))
+                         for c in lp.cascades)
+            lp = dataclasses.replace(maps[0], cascades=maps)
             lp = dataclasses.replace(lp, depth_bits=depth_bits(ctx.params.shadows, lp))
         out.append(lp)
     return out
@@ -428,7 +438,58 @@ def plan_light(ctx: PlanContext, index: int, light: Light) -> LightShadow:
         return LightShadow(index=index, light=light, position=position, reason=outcome.reason)
     fit, casters, skipped = outcome
     lp = LightShadow.fitted(index, light, position, fit, casters, skipped)
-    return dataclasses.replace(lp, depth_bits=depth_bits(ctx.params.shadows, lp))
+    return dataclasses.replace(lp, depth_bits=depth_bits(ctx.params.shadows, lp),
+                               one_sided=one_sided_casters(ctx, lp))
+
+
+def one_sided_casters(ctx: PlanContext, m: LightShadow) -> np.ndarray:
+    """Which faces of each caster of map ``m`` its draw can leave out without changing a texel.
+
+    A caster qualifies when its primitive's triangles close a surface
+    (:func:`.instances.primitive_closure`; not for a texture-cut shadow), and its whole box lies
+    beyond the map's near plane: then the light is outside it, and no face is clipped away to
+    open it. Seen from outside a closed surface, the first face on every ray is turned toward
+    the ray's origin, so the faces turned away lie behind it: they change no depth the map
+    stores, and are left out (for closed casters, about half the light pass's fragments).
+    Without ``optimize``, none.
+
+    Parameters
+    ----------
+    ctx : PlanContext
+    m : LightShadow
+        One map: a light without cascades, or one cascade.
+
+    Returns
+    -------
+    ndarray, shape (len(m.casters),), int8
+        +1: leave out GL's back faces (the surface winds counter-clockwise seen from outside);
+        -1: the front faces (it winds the other way); 0: draw both. Empty when all are 0.
+    """
+    empty = np.zeros(0, np.int8)
+    if not ctx.optimize or ctx.arrays is None or m.kind is None or not m.casters:
+        return empty
+    casters = np.asarray(m.casters, np.intp)
+    closure = ctx.arrays.closure()[casters]
+    if not closure.any():
+        return empty
+    if m.kind == "cube":
+        # A face frustum's part nearer than ``near`` lies within this Chebyshev distance of the
+        # light (90-degree faces: within ``near`` on every axis).
+        spread = max(1.0, 1.0 / abs(m.proj[0, 0]), 1.0 / abs(m.proj[1, 1]))
+        lo, hi = ctx.bounds[casters, 0], ctx.bounds[casters, 1]
+        gap = np.maximum(np.maximum(lo - m.position, m.position - hi), 0.0).max(axis=1)
+        beyond = gap > m.near * spread
+    else:
+        corners = ctx.corners[casters]  # (K, 8, 3)
+        depth = -(corners @ m.view[2, :3] + m.view[2, 3])  # view-space depth (K, 8)
+        beyond = depth.min(axis=1) >= m.near
+    out = np.where(beyond, closure, 0).astype(np.int8)
+    return _frozen(out) if out.any() else empty
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def _shadow(ctx: PlanContext, s: Subject) -> tuple[Fit, list[int], dict[str, int]] | Skip:
