@@ -88,6 +88,9 @@ def plan_summary(plan: dict, cache: bool = False) -> str:
             parts.append(f"L{k}: no pass ({lp.get('skipped_pass')})")
             continue
         bits = [f"{lp['casters']} casters"]
+        sided = lp.get("one_sided", sum(c.get("one_sided", 0) for c in lp.get("cascades", [])))
+        if sided:
+            bits.append(f"{sided} one-sided")
         bits += [f"{v} {reason}" for reason, v in lp.get("skipped", {}).items()]
         if "faces" in lp:
             bits.append(f"faces {lp['faces']}")

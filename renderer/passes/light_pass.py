@@ -134,10 +134,10 @@ class LightPass:
         self._taken: set[int] = set()  # framebuffers the current frame draws or samples
         # map_key() by light plan (see _map_key); the plan is held, so its id stays its own.
         self._keys: dict[int, tuple[LightShadow, tuple, str]] = {}
-        # Per map plan with one-sided casters, by id: (plan, its upload, the face classes by
-        # scene instance). The same array for a repeated plan lets GpuScene.groups() reuse its
-        # grouping.
-        self._sides: dict[int, tuple[LightShadow, GpuScene, np.ndarray]] = {}
+        # Per map plan with one-sided casters, by id: (plan, scene instances, the face classes
+        # by scene instance). The same array for a repeated plan lets GpuScene.groups() reuse
+        # its grouping. (No upload is held here: a cache must not keep a scene alive.)
+        self._sides: dict[int, tuple[LightShadow, int, np.ndarray]] = {}
         # An evicted map's framebuffer goes back to the pool: the next map of its shape reuses it.
         self.cache: BoundedCache[tuple[tuple, Framebuffer]] = BoundedCache(
             cache_entries, cache_bytes, size=lambda e: e[1].nbytes, on_evict=self._unkeep)
@@ -271,11 +271,12 @@ class LightPass:
         its front faces (``m.one_sided``)."""
         if not m.one_sided.size:
             return gpu.groups(m.casters)
+        n = len(gpu.prim_of)
         hit = self._sides.get(id(m))
-        if hit is None or hit[0] is not m or hit[1] is not gpu:
-            classes = np.zeros(len(gpu.prim_of), np.intp)
+        if hit is None or hit[0] is not m or hit[1] != n:
+            classes = np.zeros(n, np.intp)
             classes[np.asarray(m.casters, np.intp)] = np.choose(m.one_sided + 1, (2, 0, 1))
-            hit = self._sides[id(m)] = (m, gpu, classes)
+            hit = self._sides[id(m)] = (m, n, classes)
             while len(self._sides) > 4 * max(self.cache.max_entries, 1):
                 self._sides.pop(next(iter(self._sides)))
         return gpu.groups(m.casters, hit[2], classes=3)
