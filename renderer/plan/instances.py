@@ -125,13 +125,22 @@ def primitive_closure(prim: Primitive) -> int:
         if len(w):
             n = int(weld.max()) + 1
             a, b = w, np.roll(w, -1, axis=1)
-            forward = np.sort((a * n + b).reshape(-1))
-            if not np.any(forward[1:] == forward[:-1]) and np.array_equal(
-                    forward, np.sort((b * n + a).reshape(-1))):
-                # Signed volume about the vertices' centre: its sign is the winding's.
+            # Each edge once, as (undirected key, direction) in one sorted array: closed and
+            # consistently wound when the keys come in pairs, one each way, and no key thrice.
+            key = ((np.minimum(a, b) * n + np.maximum(a, b)) << 1 | (a > b)).reshape(-1)
+            key.sort()
+            even, odd = key[0::2], key[1::2]
+            if (len(key) % 2 == 0 and np.array_equal(even >> 1, odd >> 1)
+                    and not (even & 1).any() and (odd & 1).all()
+                    and not np.any(even[1:] >> 1 == odd[:-1] >> 1)):
+                # Signed volume (times 6) about the vertices' centre, its sign the winding's:
+                # the divergence theorem with x alone, sum of x-centroid * x-normal * area.
                 q = p[order[new]].astype(np.float64)
                 q -= q.mean(axis=0)
-                volume = float(np.einsum("ij,ij->", q[w[:, 0]], np.cross(q[w[:, 1]], q[w[:, 2]])))
+                v0, v1, v2 = q[w[:, 0]], q[w[:, 1]], q[w[:, 2]]
+                e1, e2 = v1 - v0, v2 - v0
+                nx = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+                volume = float(np.dot(nx, v0[:, 0] + v1[:, 0] + v2[:, 0]))
                 result = -1 if volume < 0 else 1
     with _LOCK:
         _CLOSURE[prim] = result
