@@ -295,3 +295,17 @@ def test_a_light_shut_in_a_closed_box_leaves_the_ground_dark(renderer, light):
     assert vis.size > 5000
     # Only the box's own faces are lit from inside; the ground around it is in its shadow.
     assert np.mean(vis > 0.5) < 0.2
+
+
+def test_the_map_cache_keeps_one_sided_maps_apart():
+    import dataclasses
+
+    from shadowmap.renderer.params import ShadowParams
+    from shadowmap.renderer.passes.light_pass import map_key
+
+    lp = _plan(_scene((_box(), _lift(1.0))), SUN).lights[0]
+    both = dataclasses.replace(lp, one_sided=np.zeros(0, np.int8))
+    shadows = ShadowParams()
+    assert map_key("s", np.zeros(3), lp, shadows) != map_key("s", np.zeros(3), both, shadows)
+    assert map_key("s", np.zeros(3), lp, shadows) == map_key(
+        "s", np.zeros(3), dataclasses.replace(lp), shadows)

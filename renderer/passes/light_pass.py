@@ -90,10 +90,10 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
     """What a light's map holds, as one content key ("" when the scene has no key).
 
     A map is a function of the scene's geometry (its key, and the upload's origin the matrices
-    are relative to), the map's fit (views, projections, depth range, size, faces, casters) and
-    the settings the light pass reads (encoding, polygon offset) — not of the camera, nor of the
-    filter the camera pass reads it with: two renders whose plans fit a light alike draw the
-    same texels.
+    are relative to), the map's fit (views, projections, depth range, size, faces, casters and
+    the faces they leave out) and the settings the light pass reads (encoding, polygon
+    offset) — not of the camera, nor of the filter the camera pass reads it with: two renders
+    whose plans fit a light alike draw the same texels.
     """
     if not scene_key:
         return ""
@@ -103,7 +103,9 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
     for m in lp.maps:
         parts += [m.view.tobytes(), m.proj.tobytes(), *(v.tobytes() for v in m.face_views),
                   repr((m.near, m.far, m.map_size, list(m.faces))).encode(),
-                  np.asarray(m.casters, np.int64).tobytes()]
+                  np.asarray(m.casters, np.int64).tobytes(),
+                  # Faces left out change a few silhouette texels by rounding: kept apart.
+                  np.asarray(m.one_sided, np.int8).tobytes()]
     return parts_key(parts)
 
 
