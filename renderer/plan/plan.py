@@ -25,6 +25,7 @@ from .cascades import CascadeFit, plan_cascades
 from .context import PlanContext, Toward
 from .culling import select_casters
 from .fit import Fit, Skip, Subject, choose_method, depth16_is_enough
+from .instances import _frozen
 from .shadow_region import (
     MAX_SPLIT_RECEIVERS,
     MIN_REGION_PIXELS,
@@ -485,11 +486,6 @@ def one_sided_casters(ctx: PlanContext, m: LightShadow) -> np.ndarray:
         beyond = depth.min(axis=1) >= m.near
     out = np.where(beyond, closure, 0).astype(np.int8)
     return _frozen(out) if out.any() else empty
-
-
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a.flags.writeable = False
-    return a
 
 
 def _shadow(ctx: PlanContext, s: Subject) -> tuple[Fit, list[int], dict[str, int]] | Skip:
