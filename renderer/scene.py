@@ -79,6 +79,12 @@ class Material:
             return BLEND_SHADOW_CUTOFF
         return None
 
+    @property
+    def shadow_texture_cut(self) -> bool:
+        """Whether its shadow is cut out by its texture's alpha: the light pass alpha-tests it
+        against the texture (a cutoff and a texture), so a face may have holes."""
+        return self.shadow_cutoff is not None and self.texture is not None
+
 
 @dataclass(eq=False)
 class Primitive:

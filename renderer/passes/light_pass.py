@@ -306,8 +306,8 @@ class LightPass:
             cutoff = mat.shadow_cutoff
             if cutoff is not None and gp.texture is None and mat.base_color[3] < cutoff:
                 continue  # wholly transparent for shadows
-            texture = gp.texture if cutoff is not None else None
-            alpha_test = texture is not None
+            alpha_test = mat.shadow_texture_cut
+            texture = gp.texture if alpha_test else None
             defines = {
                 "ENCODING": encodings.ENCODING_ID[shadows.encoding],
                 "ALPHA_TEST": alpha_test,

@@ -398,8 +398,7 @@ class SceneArrays:
         per_prim = np.zeros(len(primitives), np.int8)
         for p in np.unique(self.primitive).tolist():
             prim = primitives[p]
-            mat = prim.material
-            if mat.shadow_cutoff is None or mat.texture is None:
+            if not prim.material.shadow_texture_cut:
                 per_prim[p] = primitive_closure(prim)
         out = _frozen(per_prim[self.primitive])
         with _LOCK:
