@@ -50,6 +50,14 @@ class Light:
     range: float | None = None
     cast_shadows: bool = True
 
+    def __post_init__(self) -> None:
+        # Read-only float64 copies: a resolved light is shared by a repeated request's cached
+        # preparation and by the results handed out (RenderResult.lights).
+        for name in ("position", "direction", "color"):
+            a = np.array(getattr(self, name), np.float64)
+            a.flags.writeable = False
+            object.__setattr__(self, name, a)
+
 
 def _unit(v: np.ndarray, what: str) -> np.ndarray:
     v = np.asarray(v, np.float64)

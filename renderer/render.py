@@ -160,6 +160,11 @@ class RenderResult:
         GL platform, renderer and version strings.
     metrics : list of dict, optional
         Error against the ray-traced reference per light, when ``params.reference``.
+    camera : Camera or None
+        The camera the frame was drawn from, as the request resolved it (the file's camera, a
+        pose, or the automatic framing of the scene with its ground).
+    lights : list of Light
+        The lights as resolved for this frame, in the request's order.
     warnings : list of str
         Everything this render had to drop or approximate, one sentence each: the scene's own
         (what loading it left out, :attr:`Scene.warnings`), then the renderer's (a clamped
@@ -175,6 +180,8 @@ class RenderResult:
     plan: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     metrics: list[dict] | None = None
+    camera: Camera | None = None
+    lights: list[Light] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
 
     def report(self) -> dict[str, Any]:
@@ -508,7 +515,8 @@ class Renderer:
             t = time.perf_counter()
             # A list[str] copy: CameraPass.read takes list[str], and list is invariant.
             out = self.camera_pass.read(list(params.outputs), len(lights), params.alpha, camera)
-            result = RenderResult(color=out.color, visibility=out.visibility, depth=out.depth)
+            result = RenderResult(color=out.color, visibility=out.visibility, depth=out.depth,
+                                  camera=camera, lights=list(lights))
             if "light_depth" in params.outputs:
                 result.light_depth = _light_depths(maps)
             check_gl("readback")

@@ -51,7 +51,9 @@ def manifest_entries(models: Path, folder: Path, count: int = 200) -> list[dict[
         scene: Any = {"builtin": "demo"} if k % 3 == 0 else str(models / MODELS[k % len(MODELS)])
         params: dict[str, Any] = {**SIZE, "outputs": outputs[k % len(outputs)],
                                   "lights": [light(k)]}
-        if k % 3:
+        # Every model on a ground plane; every other demo job asks for one too, which its own
+        # floor keeps out (a warning, and an automatic framing without it).
+        if k % 3 or k % 6 == 3:
             params["ground"] = True
         job: dict[str, Any] = {"id": f"job-{k:03d}", "scene": scene, "params": params}
         if k % 10 == 4:  # views of one scene, one light fit for all of them

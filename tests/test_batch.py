@@ -77,6 +77,27 @@ def test_meta_json(batch):
     assert isinstance(meta["warnings"], list)
 
 
+def test_meta_json_describes_the_frame_drawn(batch):
+    """Every view's meta.json gives the camera and lights the render resolved: its camera pose is
+    the one the plan reports, also where the scene's own floor kept the ground out of an
+    automatic framing (the demo scene with ``ground: true``)."""
+    _, _, out, _ = batch
+    metas = sorted(out.glob("job-*/**/meta.json"))
+    assert len(metas) > 150
+    own_floor = 0
+    for path in metas:
+        meta = json.loads(path.read_text())
+        pose = meta["camera"]["camera_to_world"]
+        eye = [pose[0][3], pose[1][3], pose[2][3]]
+        planned = meta["plan"]["camera"]
+        assert eye == pytest.approx(planned["eye"], rel=1e-12, abs=1e-12), path
+        assert meta["camera"]["znear"] == pytest.approx(planned["znear"], rel=1e-12), path
+        assert len(meta["lights"]) == len(meta["plan"]["lights"]), path
+        own_floor += any("its own floor" in w for w in meta["warnings"]) and \
+            "camera" not in meta["params"]
+    assert own_floor > 0  # the case above is in the manifest
+
+
 def test_rerun_skips_everything(batch):
     _, manifest, out, _ = batch
     before = (out / "results.jsonl").read_text()

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from shadowmap.renderer import Limits, Renderer, RenderParams, RenderResult, Scene
-from shadowmap.renderer.camera import Camera, resolve_camera
-from shadowmap.renderer.lights import Light, resolve_lights
+from shadowmap.renderer.camera import Camera
+from shadowmap.renderer.lights import Light
 from shadowmap.renderer.png import depth_u16, png_bytes, visibility_u16
 
 from .errors import JobError, error_of
@@ -117,7 +117,7 @@ class JobRunner:
 
     def __init__(self, platform: str | None = None, limits: Limits | None = None) -> None:
         self.renderer = Renderer(platform, limits=limits)
-        self._scenes: OrderedDict[str, tuple[Scene, Scene | None]] = OrderedDict()
+        self._scenes: OrderedDict[str, Scene] = OrderedDict()
         self.identity = worker_identity()
 
     def close(self) -> None:
@@ -136,17 +136,15 @@ class JobRunner:
         t0 = time.perf_counter()
         out = JobOutcome(task.job_id, task.input_hash, task.attempt, worker=self.identity)
         try:
-            scene, grounded, out.fetch_seconds = self._scene(task, fetch)
+            scene, out.fetch_seconds = self._scene(task, fetch)
             files: dict[str, bytes] = {}
             for name, raw in task.variations:
                 params = RenderParams.model_validate(raw)
                 result = self.renderer.render(scene, params)
                 out.render_seconds += result.timings.get("total", 0.0)
                 out.light_passes_cached += int(result.plan.get("light_passes_cached", 0))
-                view_scene = grounded if params.ground and grounded is not None else scene
                 prefix = f"{name}/" if name else ""
-                for rel, data in variation_files(result, params, view_scene, task, name,
-                                                 raw).items():
+                for rel, data in variation_files(result, task, name, raw).items():
                     files[prefix + rel] = data
             out.files = files
         except JobError as exc:
@@ -156,25 +154,19 @@ class JobRunner:
         out.seconds = time.perf_counter() - t0
         return out
 
-    def _scene(self, task: Task, fetch: Callable[[], SceneBytes]
-               ) -> tuple[Scene, Scene | None, float]:
+    def _scene(self, task: Task, fetch: Callable[[], SceneBytes]) -> tuple[Scene, float]:
         hit = self._scenes.get(task.scene_digest)
         if hit is not None:
             self._scenes.move_to_end(task.scene_digest)
-            return hit[0], hit[1], 0.0
+            return hit, 0.0
         t = time.perf_counter()
         sb = fetch()
         fetched = time.perf_counter() - t
         scene = self.renderer.load(sb.data, file_type=sb.file_type, resources=sb.resources)
-        # The ground is added by the renderer per render; this copy is only for resolving the
-        # camera and lights written to meta.json, so it is made once per scene.
-        grounded = None
-        if any(v[1].get("ground") for v in task.variations):
-            grounded = scene.with_ground()
-        self._scenes[task.scene_digest] = (scene, grounded)
+        self._scenes[task.scene_digest] = scene
         while len(self._scenes) > SCENE_ENTRIES:
             self._scenes.popitem(last=False)
-        return scene, grounded, fetched
+        return scene, fetched
 
 
 # --------------------------------------------------------------------------------------------
@@ -232,10 +224,11 @@ def _jsonable(value: object) -> object:
     return str(value)
 
 
-def variation_files(result: RenderResult, params: RenderParams, scene: Scene, task: Task,
-                    name: str, raw: dict[str, Any]) -> dict[str, bytes]:
+def variation_files(result: RenderResult, task: Task, name: str, raw: dict[str, Any]
+                    ) -> dict[str, bytes]:
     """The files of one render: the requested images as PNG (and arrays as ``.npy``) and
-    ``meta.json``."""
+    ``meta.json``, whose camera and lights are the ones the render resolved
+    (:attr:`RenderResult.camera`, :attr:`RenderResult.lights`)."""
     files: dict[str, bytes] = {}
     meta_outputs: dict[str, Any] = {}
     if result.color is not None:
@@ -265,14 +258,15 @@ def variation_files(result: RenderResult, params: RenderParams, scene: Scene, ta
                             "ranges": ld.ranges, "png": f"light_depth_{ld.light}.png",
                             "npy": f"light_depth_{ld.light}.npy"})
         meta_outputs["light_depth"] = entries
-    camera = resolve_camera(params.camera, scene, params.width, params.height)
+    if result.camera is None:
+        raise ValueError("a render result without its camera")
     meta = {
         "job": task.job_id,
         "variation": name or None,
         "scene": task.scene_label,
         "params": raw,
-        "camera": camera_meta(camera),
-        "lights": [light_meta(lt) for lt in resolve_lights(params.lights, scene)],
+        "camera": camera_meta(result.camera),
+        "lights": [light_meta(lt) for lt in result.lights],
         "outputs": meta_outputs,
         "timings": result.timings,
         "plan": result.plan,
