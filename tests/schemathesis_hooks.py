@@ -22,9 +22,9 @@ only what it cannot, each named where it acts:
    descriptions: schema-valid cases that break one are filtered out. They are found by the
    request model itself, and only errors of its ``cross_field`` type filter a case: any other
    refusal of a schema-valid request still fails the run.
-5. **Form serialisation.** An extra form field generated with a value multipart cannot carry
-   (null, an empty list) is sent as an empty text part, so that the invalid case is invalid
-   on the wire too.
+5. **Form serialisation.** A form field other than ``scene`` (``params`` or an extra one)
+   generated with a value multipart cannot carry (null, an empty list: no part at all on the
+   wire) is sent as an empty text part, so that the invalid case is invalid on the wire too.
 """
 
 from __future__ import annotations
@@ -89,10 +89,10 @@ def _map(case: Any) -> Any:
     elif media.startswith("multipart/") and isinstance(case.body, dict):
         if _is_bytes(case.body.get("scene")):
             case.body["scene"] = _pick(scenes()["scene"], case.body["scene"])
-        # 5. A generated extra form field multipart cannot carry (null, an empty list) would
-        # leave the wire request valid while the case counts as invalid: send it as text.
+        # 5. A generated form field multipart cannot carry (null, an empty list) would leave
+        # the wire request valid while the case counts as invalid: send it as text.
         for name, value in case.body.items():
-            if name not in ("scene", "params") and (value is None or value == []):
+            if name != "scene" and (value is None or value == []):
                 case.body[name] = ""
     # 2. One place for params: the query only with a raw scene body.
     if media not in RAW_SCENE_TYPES and case.query and "params" in case.query:
