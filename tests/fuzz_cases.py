@@ -364,8 +364,9 @@ class _Gen:
             paths = _paths(doc)
             for path in self.rng.sample(paths, min(8, len(paths))):
                 value = self.rng.choice(WRONG_VALUES)
+                # "sampled": the top-level cases below may draw the same path and value.
                 self.glb_doc(name, lambda d, p=path, v=value: _set(d, p, v),
-                             label=f"{name} {'/'.join(map(str, path))} = {value!r}")
+                             label=f"{name} sampled {'/'.join(map(str, path))} = {value!r}")
         for key in ("asset", "scene", "scenes", "nodes", "meshes", "accessors", "bufferViews",
                     "buffers", "materials", "textures", "images", "samplers", "cameras", "skins",
                     "animations", "extensions", "extensionsUsed", "extensionsRequired",
