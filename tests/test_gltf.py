@@ -499,9 +499,12 @@ def test_normals_are_the_files_or_area_weighted():
     nrm = g.accessor(np.array([[0, 0, 2], [0, 0, 1], [0, 0, 0]], np.float32))
     g.node(mesh=g.triangle(attributes={"NORMAL": nrm}))
     g.node(mesh=g.triangle())
-    with_normals, computed = g.load().primitives
+    scene = g.load()
+    with_normals, computed = scene.primitives
     np.testing.assert_allclose(with_normals.normals, [[0, 0, 1]] * 3)  # zero one filled in
     np.testing.assert_allclose(computed.normals, [[0, 0, 1]] * 3)
+    assert scene.warnings == ["mesh 0 primitive 0: 1 normals are zero or not finite; computed "
+                              "from the faces"]
 
 
 def test_vertex_colours_only_when_not_all_white():
@@ -512,6 +515,21 @@ def test_vertex_colours_only_when_not_all_white():
     white, red = g.load().primitives
     assert white.colors is None
     np.testing.assert_allclose(red.colors, [[1, 0, 0, 1]] * 3)
+
+
+def test_vertex_colours_outside_their_range_are_clamped_with_a_warning():
+    g = Gltf()
+    g.node(mesh=g.triangle(attributes={"COLOR_0": g.accessor(
+        np.array([[2, 0.5, -1], [0.5, 0.5, 0.5], [1, 1, 1]], np.float32))}), name="hot")
+    g.node(mesh=g.triangle(attributes={"COLOR_0": g.accessor(
+        np.array([[np.nan, 0, 0, 1], [0, 1, 0, 1], [0, 0, np.inf, 1]], np.float32))}))
+    scene = g.load()
+    hot, holes = scene.primitives
+    np.testing.assert_array_equal(hot.colors, [[1, 0.5, 0, 1], [0.5, 0.5, 0.5, 1], [1, 1, 1, 1]])
+    np.testing.assert_array_equal(holes.colors, [[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 1]])
+    assert len(scene.warnings) == 2, scene.warnings
+    assert "outside [0, 1] (from -1 to 2); clamped" in scene.warnings[0]
+    assert "2 vertex colours (COLOR_0) are not finite; drawn white" in scene.warnings[1]
 
 
 def test_draco_primitives_use_the_decoder_interface(monkeypatch):
@@ -668,6 +686,47 @@ def test_unsafe_image_uris_are_refused_like_buffer_uris(uri):
         g.load()
 
 
+def test_base_colour_factor_outside_its_range_is_clamped_with_a_warning():
+    g = Gltf()
+    # -1e308 is finite here but not in float32, where it would turn into -inf.
+    g.doc["materials"] = [{"pbrMetallicRoughness": {"baseColorFactor": [2, 0.5, -1e308, 1]},
+                           "name": "hot"}]
+    g.node(mesh=g.triangle(material=0))
+    scene = g.load()
+    np.testing.assert_array_equal(scene.primitives[0].material.base_color, [1, 0.5, 0, 1])
+    (w,) = scene.warnings
+    assert "material 0 ('hot')" in w and "outside [0, 1]; clamped" in w, w
+
+
+def test_uvs_far_from_zero_move_by_whole_repeats_and_non_finite_ones_are_said():
+    """Texture coordinates a million repeats out keep no fraction in float32: moved towards 0
+    by an even number of repeats (the same texels under REPEAT and MIRRORED_REPEAT)."""
+    far = np.array([[1e6 + 0.25, 0.0], [1e6 + 0.5, 0.0], [1e6 + 0.75, 1.0]])
+    prim = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}},
+                     far).load().primitives[0]
+    np.testing.assert_array_equal(prim.uv, [[0.25, 1.0], [0.5, 1.0], [0.75, 0.0]])
+    wide = np.array([[0.0, 0.0], [5000.0, 0.0], [0.0, 1.0]])
+    scene = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}},
+                      wide).load()
+    np.testing.assert_array_equal(scene.primitives[0].uv, [[0, 1], [5000, 1], [0, 0]])
+    (w,) = scene.warnings
+    assert "span 5e+03 repeats" in w, w
+    holes = np.array([[np.nan, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    scene = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}},
+                      holes).load()
+    np.testing.assert_array_equal(scene.primitives[0].uv, [[0, 1], [1, 1], [0, 0]])
+    (w,) = scene.warnings
+    assert "1 texture coordinates (TEXCOORD_0) are not finite in float32" in w, w
+    # Finite in float64, past float32's range: no fraction left either.
+    g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0, "extensions": {
+        "KHR_texture_transform": {"scale": [1e39, 1.0]}}}}}, UV0)
+    g.doc["extensionsUsed"] = ["KHR_texture_transform"]
+    scene = g.load()
+    np.testing.assert_array_equal(scene.primitives[0].uv, [[0, 1], [0, 1], [0, 0]])
+    (w,) = scene.warnings
+    assert "1 texture coordinates (TEXCOORD_0) are not finite in float32" in w, w
+
+
 def test_texture_without_its_uv_set_draws_untextured():
     g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0, "texCoord": 1}}},
                   UV0)
@@ -744,6 +803,34 @@ def test_matrix_and_trs_and_non_finite_transforms():
     g.node(root=False, mesh=mesh, translation=[1e308, 0, 0])
     with pytest.raises(SceneError, match="non-finite transform"):
         g.load()
+
+
+def test_a_non_affine_node_matrix_is_drawn_affine_with_a_warning():
+    """A projective bottom row would divide the drawn positions by w while bounds, culling and
+    the reference treat the node as affine: it is reset to (0, 0, 0, 1) and said; rounding noise
+    is reset without a word."""
+    g = Gltf()
+    mesh = g.triangle()
+    m = np.eye(4)
+    m[:3, 3] = [1, 2, 3]
+    m[3] = [0.5, 0, 0, 1]
+    g.node(matrix=m.T.ravel().tolist(), children=[1], name="lens")
+    g.node(root=False, mesh=mesh, translation=[0, 0, 1])
+    noisy = np.eye(4)
+    noisy[3] = [1e-9, 0, 0, 1 + 1e-9]
+    g.node(mesh=mesh, matrix=noisy.T.ravel().tolist())
+    far = np.eye(4)
+    far[3, 0] = 1e308
+    g.node(root=False, mesh=mesh, matrix=far.T.ravel().tolist())  # not drawn: no warning
+    scene = g.load()
+    child, plain = scene.instances
+    expected = np.eye(4)
+    expected[:3, 3] = [1, 2, 4]
+    np.testing.assert_array_equal(child.matrix, expected)
+    np.testing.assert_array_equal(plain.matrix, np.eye(4))
+    np.testing.assert_allclose(child.bounds, [[1, 2, 4], [2, 3, 4]])
+    (w,) = scene.warnings
+    assert "node 'lens'" in w and "not affine" in w and "[0.5, 0.0, 0.0, 1.0]" in w, w
 
 
 def test_fifty_thousand_instances_load_quickly():
@@ -832,6 +919,27 @@ def test_cameras_and_lights_with_their_node_transforms():
     np.testing.assert_allclose(light.pose[:3, 3], [0, 0, 5])
     assert any("orthographic" in w for w in scene.warnings)
     assert any("camera 9 does not exist" in w for w in scene.warnings)
+
+
+def test_cameras_and_lights_float32_cannot_place_are_left_out_with_a_warning():
+    """A camera 1e30 units out would overflow the camera's near and far planes (and a point
+    light the shaders' distances): left out, said; a directional light's position is moot."""
+    g = one_triangle()
+    g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}]
+    g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "point"},
+                                                              {"type": "directional"}]}}
+    g.node(translation=[0, 1e30, 0], camera=0, name="far",
+           extensions={"KHR_lights_punctual": {"light": 0}})
+    g.node(translation=[0, 1e30, 0], extensions={"KHR_lights_punctual": {"light": 1}})
+    g.node(translation=[0, 0, 1e17], camera=0, extensions={"KHR_lights_punctual": {"light": 0}})
+    scene = g.load()
+    (cam,) = scene.cameras
+    assert cam.pose[2, 3] == 1e17
+    assert [lt.type for lt in scene.lights] == ["directional", "point"]
+    assert scene.warnings == [
+        f"node 'far' is 1e+30 units from the scene's centre, more than float32 coordinates hold: "
+        f"its {what} is left out" for what in ("camera", "point light")]
 
 
 # ------------------------------------------------------------------------------------------------

@@ -192,8 +192,12 @@ class Accessors:
         return values
 
     def read_float(self, index: int) -> np.ndarray:
-        """:meth:`read` as float64 (non-normalized integers keep their integer values)."""
-        return self.read(index).astype(np.float64)
+        """:meth:`read` as float64 (non-normalized integers keep their integer values).
+
+        Signalling NaNs come out quiet (without numpy's cast warning): what a NaN costs is
+        decided, and said, by the attribute's reader."""
+        with np.errstate(invalid="ignore"):
+            return self.read(index).astype(np.float64)
 
     # -- internals -------------------------------------------------------------------------
 

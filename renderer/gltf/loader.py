@@ -17,20 +17,24 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError, UnsupportedExtension
-from ..limits import Limits
+from ..limits import MAX_COORDINATE, Limits
 from ..scene import Instance, Material, Primitive, SceneCamera, SceneLight, _vertex_normals
 from . import morph, skin
 from .accessors import UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, check_type
 from .admission import admit
 from .extensions import check_extensions, gpu_instancing, lights_punctual, mesh_quantization
 from .extensions import texture_transform as tt
-from .materials import Materials, MaterialUse
+from .materials import COLOUR_SLACK, Materials, MaterialUse
 from .nodes import INVALID, NodeGraph, build_graph
 from .primitives import MODE_NAMES, RESTART, TRIANGLES, triangulate
 from .reader import Buffers, Document, Resolver, brief, extension, get_index, get_list
 
 DRACO = "KHR_draco_mesh_compression"
 INSTANCING = gpu_instancing.EXTENSION
+#: Texture coordinates beyond this are moved towards 0 by whole repeats: float32 keeps
+#: 2**-13 of a repeat at 1024 (a quarter texel of a 2048-texel image), less beyond.
+_UV_SHIFT_FROM = 1024.0
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 _INDEX_COMPONENTS = frozenset({(UNSIGNED_BYTE, False), (UNSIGNED_SHORT, False),
                                (UNSIGNED_INT, False)})
 
@@ -128,6 +132,7 @@ class _Loader:
         self.required = ({r for r in required if isinstance(r, str)}
                          if isinstance(required, list) else set())
         self.graph: NodeGraph = build_graph(self.doc)
+        self.warnings += self.graph.warnings
         self.meshes = get_list(self.doc, "meshes")
         self.skins = get_list(self.doc, "skins")
         self.buffers = Buffers(document, resolver)
@@ -387,7 +392,7 @@ class _Loader:
         if not np.all(np.isfinite(positions)):
             raise SceneError(f"mesh {m} ({what}) has NaN or infinite vertex positions")
 
-        normals = self._normals(positions, faces, normals)
+        normals = self._normals(positions, faces, normals, what)
         use = self.materials.get(get_index(prim, "material", len(self.materials.specs), what))
         material, uv = self._uv(use, attrs, decoded, n, take, what)
         colors = self._colors(attrs, decoded, n, take, what)
@@ -427,17 +432,20 @@ class _Loader:
         return self.accessors.read_float(idx)
 
     def _normals(self, positions: np.ndarray, faces: np.ndarray,
-                 normals: np.ndarray | None) -> np.ndarray:
+                 normals: np.ndarray | None, what: str) -> np.ndarray:
         """Unit normals: the file's (renormalized; quantized ones are not unit), computed
         area-weighted ones where the file has none or a vertex's is zero or not finite."""
         computed = None
         if normals is not None:
-            length = np.linalg.norm(normals, axis=1, keepdims=True)
+            with np.errstate(over="ignore", invalid="ignore"):
+                length = np.linalg.norm(normals, axis=1, keepdims=True)
             ok = np.isfinite(length[:, 0]) & (length[:, 0] > 1e-12)
             out = np.where(ok[:, None], normals / np.where(ok[:, None], length, 1.0), 0.0)
             if not ok.all():
                 computed = _vertex_normals(positions, faces)
                 out[~ok] = computed[~ok]
+                self.warnings.append(f"{what}: {int((~ok).sum())} normals are zero or not "
+                                     "finite; computed from the faces")
             return out.astype(np.float32)
         return _vertex_normals(positions, faces)
 
@@ -493,10 +501,31 @@ class _Loader:
         uv = take(raw)
         if use.uv_transform is not None:
             uv = tt.apply(uv, use.uv_transform)
-        uv = np.where(np.isfinite(uv), uv, 0.0)
+        uv = np.asarray(uv, np.float64)
+        with np.errstate(invalid="ignore"):
+            # Past float32's range a coordinate has no fraction left even in float64.
+            finite = (np.abs(uv) <= _FLOAT32_MAX).all(axis=1)
+        if not finite.all():
+            self.warnings.append(f"{what}: {int((~finite).sum())} texture coordinates "
+                                 f"({semantic}) are not finite in float32; drawn as (0, 0)")
+            uv = np.where(finite[:, None], uv, 0.0)
         if use.wrap is not None and (uv.min(initial=0.0) < 0.0 or uv.max(initial=1.0) > 1.0):
             self.warnings.append(f"{what}: the texture of {use.name} wraps with {use.wrap}; "
                                  "drawn with REPEAT")
+        if len(uv) and np.abs(uv).max() > _UV_SHIFT_FROM:
+            # Far from 0, float32 keeps few bits of a repeat. The texture repeats (and mirrors)
+            # every 2 units, so moving the primitive's coordinates by an even integer towards 0
+            # samples the same texels; what then still spans too far is said.
+            uv = uv - 2.0 * np.floor(uv.min(axis=0) / 2.0)
+            span = float(uv.max())
+            if span > _UV_SHIFT_FROM:
+                uv = np.minimum(uv, _FLOAT32_MAX)  # a span past float32's range: its edge
+                # float32's step at the span; from 2**24 on, whole repeats at best.
+                kept = (f"to {float(np.spacing(np.float32(span))):.2g} of a repeat"
+                        if span < 2.0**24 else "no fraction of a repeat")
+                self.warnings.append(
+                    f"{what}: its texture coordinates ({semantic}) span {span:.3g} repeats: "
+                    f"float32 keeps {kept}")
         # Primitive.uv is in OpenGL's convention (v = 1 - glTF v): the renderer and the
         # reference sample the image, stored top row first, at row (1 - v) * height.
         out = np.empty_like(uv, dtype=np.float32)
@@ -513,7 +542,18 @@ class _Loader:
         c = take(raw)
         if c.shape[1] == 3:
             c = np.concatenate([c, np.ones((len(c), 1))], axis=1)
-        c = np.where(np.isfinite(c), c, 1.0)
+        finite = np.isfinite(c)
+        if not finite.all():
+            self.warnings.append(f"{what}: {int((~finite).any(axis=1).sum())} vertex colours "
+                                 "(COLOR_0) are not finite; drawn white")
+            c = np.where(finite, c, 1.0)
+        low, high = c.min(initial=0.0), c.max(initial=1.0)
+        if low < -COLOUR_SLACK or high > 1.0 + COLOUR_SLACK:
+            # glTF's range (a float COLOR_0 may hold anything): clamped, but said, since the
+            # file meant something else (an exporter's rounding past 1 is not worth a word).
+            self.warnings.append(f"{what}: vertex colours (COLOR_0) outside [0, 1] "
+                                 f"(from {low:.3g} to {high:.3g}); clamped")
+        c = np.clip(c, 0.0, 1.0)
         if np.allclose(c, 1.0):
             return None  # all-white vertex colours change nothing: leave the path out
         return c.astype(np.float32)
@@ -572,6 +612,10 @@ class _Loader:
         cameras: list[SceneCamera] = []
         out_lights: list[SceneLight] = []
         candidates = np.flatnonzero(g.in_scene & ((g.camera != -1) | g.special))
+        box = self.arrays["bounds"]
+        # The upload is placed at the centre of the scene's box: a camera or positioned light
+        # float32 cannot place relative to it is left out (a request's is refused).
+        centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2
         for i in candidates.tolist():
             node = g.nodes[i]
             has_light = extension(node, lights_punctual.EXTENSION) is not None
@@ -585,14 +629,24 @@ class _Loader:
                 self.warnings.append(f"node {g.names[i]!r} has a non-finite transform: its "
                                      "camera or light is left out")
                 continue
+            with np.errstate(over="ignore", invalid="ignore"):
+                reach = float(np.max(np.abs(pose[:3, 3] - centre)))
+            far = (f"node {g.names[i]!r} is {reach:.3g} units from the scene's centre, more "
+                   "than float32 coordinates hold: its {} is left out")
             if g.camera[i] >= 0:
                 cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]))
-                if cam is not None:
+                if cam is not None and not reach <= MAX_COORDINATE:
+                    self.warnings.append(far.format("camera"))
+                elif cam is not None:
                     cameras.append(cam)
             if has_light:
                 light = lights_punctual.node_light(node, lights, pose, self.warnings,
                                                    f"node {g.names[i]!r}")
-                if light is not None:
+                # A directional light has no position that matters.
+                if (light is not None and light.type != "directional"
+                        and not reach <= MAX_COORDINATE):
+                    self.warnings.append(far.format(f"{light.type} light"))
+                elif light is not None:
                     out_lights.append(light)
         return cameras, out_lights
 

@@ -36,6 +36,9 @@ IMAGE_FORMATS = ("PNG", "JPEG", "WEBP")
 REPEAT = 10497
 WRAP_NAMES = {33071: "CLAMP_TO_EDGE", 33648: "MIRRORED_REPEAT", REPEAT: "REPEAT"}
 ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
+#: How far past glTF's [0, 1] a colour (factor or COLOR_0) may lie before its clamping is
+#: worth a warning: an exporter's rounding just past 1 is not.
+COLOUR_SLACK = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,7 +193,13 @@ class Materials:
         if (isinstance(value, list) and len(value) == 4
                 and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
                 and all(math.isfinite(v) for v in value)):
-            return np.asarray(value, np.float32)
+            factor = np.asarray(value, np.float64)
+            if factor.min() < -COLOUR_SLACK or factor.max() > 1.0 + COLOUR_SLACK:
+                # glTF's range; outside it the shading (and float32) would quietly go wrong.
+                # An exporter's rounding just past 1 is clamped without a word.
+                self.warnings.append(f"{label}: base colour factor {brief(value)} is outside "
+                                     "[0, 1]; clamped")
+            return np.clip(factor, 0.0, 1.0).astype(np.float32)
         self.warnings.append(f"{label}: base colour factor {brief(value)} is not 4 finite numbers; "
                              "white is used")
         return np.ones(4, np.float32)

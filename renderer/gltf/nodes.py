@@ -87,6 +87,8 @@ class NodeGraph:
     #: (EXT_mesh_gpu_instancing, KHR_lights_punctual).
     special: np.ndarray
     names: list[str]
+    #: What was repaired in the graph of the drawn scene (a non-affine node matrix).
+    warnings: list[str]
 
     def scene_nodes(self) -> np.ndarray:
         """Indices of the nodes of the drawn scene, ascending."""
@@ -206,7 +208,15 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     with np.errstate(over="ignore", invalid="ignore"):  # huge TRS: refused where drawn
         local = trs_matrices(t, r, s)
     # glTF matrices are column-major: the 16 numbers are the columns. A matrix wins over TRS.
-    local[m_rows] = matrix.reshape(-1, 4, 4).transpose(0, 2, 1)
+    given = matrix.reshape(-1, 4, 4).transpose(0, 2, 1)
+    # A node matrix must be an affine TRS. A projective bottom row would divide the drawn
+    # positions by w while bounds, culling and the reference treat the matrix as affine: the
+    # row is reset to (0, 0, 0, 1) (exporters' rounding noise silently, anything else warned).
+    with np.errstate(invalid="ignore"):
+        projective = np.abs(given[:, 3] - (0.0, 0.0, 0.0, 1.0)).max(axis=1, initial=0.0) > 1e-6
+    projective |= ~np.isfinite(given[:, 3]).all(axis=1)
+    given[:, 3] = (0.0, 0.0, 0.0, 1.0)
+    local[m_rows] = given
 
     # The scene drawn, and its listed nodes.
     listed = np.zeros(n, bool)
@@ -250,5 +260,9 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
         reached[np.concatenate(order)] = True
         first = int(np.flatnonzero(~reached)[0])
         raise SceneError(f"the node graph has a cycle (through node {first})")
+    warnings = [f"node {names[i]!r}: its matrix is not affine (bottom row "
+                f"{brief(m_values[k][3::4])}, not [0, 0, 0, 1]); drawn with [0, 0, 0, 1]"
+                for k, i in enumerate(m_rows) if projective[k] and in_scene[i]]
     return NodeGraph(nodes, local, world, parent, np.concatenate(order), in_scene,
-                     refs["mesh"], refs["skin"], refs["camera"], cast, receive, special, names)
+                     refs["mesh"], refs["skin"], refs["camera"], cast, receive, special, names,
+                     warnings)
