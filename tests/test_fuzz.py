@@ -12,6 +12,10 @@
 
 Every failure is collected and reported together, with the case names.
 ``SHADOWMAP_FUZZ_SEED`` picks another draw of the random cases (default 12).
+
+- Random mutations of the real models (``fuzz_mutations.py``, ``SHADOWMAP_FUZZ_MUTATIONS`` of
+  them, default 600) through the library: refused or rendered, and a render during which numpy
+  overflowed carries a warning.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -35,6 +40,7 @@ from PIL import Image
 
 from conftest import models_dir
 from fuzz_cases import SMALL, SMALL_JSON, TRI, Case, Outside, generate
+from fuzz_mutations import mutations
 from shadowmap.renderer import Limits, RenderParams, ShadowMapError, load_scene
 
 #: The service's upload limit for the fuzz server: small, so that the zip bomb (64 MiB of
@@ -42,6 +48,8 @@ from shadowmap.renderer import Limits, RenderParams, ShadowMapError, load_scene
 FUZZ_UPLOAD_BYTES = 8 * 2**20
 #: The generator's seed: which truncations, flipped bytes and sampled fields the cases hold.
 FUZZ_SEED = int(os.environ.get("SHADOWMAP_FUZZ_SEED", "12"))
+#: How many random mutations of the real models (``fuzz_mutations.py``) are loaded and rendered.
+MUTATIONS = int(os.environ.get("SHADOWMAP_FUZZ_MUTATIONS", "600"))
 
 
 @pytest.fixture(scope="module")
@@ -195,6 +203,37 @@ def test_fuzz_library_render(cases, renderer):
         check_outcome(case, outcome, failures)
     assert rendered >= 50
     assert not failures, f"{len(failures)} cases:\n" + "\n".join(failures)
+
+
+@pytest.mark.gl
+def test_fuzz_mutated_models(renderer):
+    """Random mutations of the real models (``fuzz_mutations.py``), loaded and rendered: a
+    ShadowMapError or a render, and a render during which numpy overflowed or met an invalid
+    value carries a warning (else the overflow went into the picture unsaid: the repairs of a
+    projective node matrix, a colour past float32 and far texture coordinates were found so)."""
+    failures: list[str] = []
+    outcomes = {"ok": 0, "error": 0}
+    for name, data in mutations(models_dir(), MUTATIONS, FUZZ_SEED):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RuntimeWarning)
+            try:
+                result = renderer.render(load_scene(data, file_type="glb", limits=Limits()),
+                                         SMALL)
+            except ShadowMapError:
+                outcomes["error"] += 1
+                continue
+            except Exception as exc:  # noqa: BLE001 - what the test looks for
+                failures.append(f"{name}: crash: {type(exc).__name__}: {str(exc)[:200]}")
+                continue
+        outcomes["ok"] += 1
+        numeric = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+        if numeric and not result.warnings:
+            failures.append(f"{name}: rendered without a warning after numpy's {numeric[:3]}")
+        if result.color is None or result.color.shape[:2] != (SMALL["height"], SMALL["width"]):
+            failures.append(f"{name}: color {getattr(result.color, 'shape', None)}")
+    # Both outcomes, plenty of each: the mutations neither all break nor all miss.
+    assert min(outcomes.values()) >= MUTATIONS // 5, outcomes
+    assert not failures, f"{len(failures)} of {MUTATIONS} mutations:\n" + "\n".join(failures)
 
 
 # ------------------------------------------------------------------------------------------------

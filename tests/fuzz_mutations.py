@@ -1,0 +1,99 @@
+"""Random mutations of real models: the values a broken exporter or a hostile client writes.
+
+Where :mod:`fuzz_cases` holds named cases, each aimed at one rule, :func:`mutations` draws many
+unnamed ones: one to three JSON values of a real ``.glb`` replaced by a neighbour of the value
+(an integer off by one or doubled, a component type, a float scaled by 1e30 or set to 1e308, a
+string swapped for another glTF keyword, an array shortened or lengthened, an object losing a
+key), and now and then a few bytes of the binary chunk overwritten. Numbers stay finite in JSON:
+the repairs these reach are the ones that only go wrong in float32 or in a product (a colour of
+-1e308, a matrix row of 1e308, a texture coordinate scaled past float32's range).
+
+``tests/test_fuzz.py`` loads and renders each; ``SHADOWMAP_FUZZ_SEED`` picks another draw.
+"""
+
+from __future__ import annotations
+
+import copy
+import random
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from gltf_files import make_glb, split_glb
+
+#: Models mutated: the small files of the models folder, and ones with skins, morph targets,
+#: animations and several meshes and textures.
+MODELS = ("cube.glb", "TwoCubes.glb", "BoxTextured.glb", "BoxMeshopt.glb", "Duck.glb",
+          "CesiumMan.glb", "Fox.glb", "CesiumMilkTruck.glb")
+_STRINGS = ("", "VEC2", "VEC3", "VEC4", "SCALAR", "MAT2", "MAT4", "data:,", "BLEND", "MASK",
+            "x.bin", "image/png")
+_INTS = (5120, 5121, 5122, 5123, 5125, 5126, 2**31)
+
+
+def _paths(doc: Any, rng: random.Random, prefix: tuple = ()) -> list[tuple]:
+    """Paths to values in ``doc``: every key, and up to 4 items of each array."""
+    out = [prefix] if prefix else []
+    if isinstance(doc, dict):
+        for key, value in doc.items():
+            out += _paths(value, rng, (*prefix, key))
+    elif isinstance(doc, list):
+        items = range(len(doc)) if len(doc) <= 4 else sorted(rng.sample(range(len(doc)), 4))
+        for i in items:
+            out += _paths(doc[i], rng, (*prefix, i))
+    return out
+
+
+def _neighbour(old: Any, rng: random.Random) -> Any:
+    """A value near ``old`` in type or meaning."""
+    if isinstance(old, bool) or old is None:
+        return rng.choice([0, 1, "x", None, [], {}])
+    if isinstance(old, int):
+        return rng.choice([old + 1, old - 1, old * 2, -old, 0, old + 4, 2**32 + old,
+                           *_INTS])
+    if isinstance(old, float):
+        return rng.choice([old * 1e30, -old, 0.0, 1e-30, old + 1, 1e308, -1e308, old * 1e-30])
+    if isinstance(old, str):
+        return rng.choice([*_STRINGS, old + "x"])
+    if isinstance(old, list):
+        if old and rng.random() < 0.5:
+            shorter = list(old)
+            del shorter[rng.randrange(len(shorter))]
+            return shorter
+        return old + old[:1] if old else [0]
+    if isinstance(old, dict):
+        fewer = dict(old)
+        if fewer and rng.random() < 0.6:
+            fewer.pop(rng.choice(list(fewer)))
+        return fewer
+    return None
+
+
+def mutations(models: Path, count: int, seed: int) -> Iterator[tuple[str, bytes]]:
+    """``count`` mutated GLB files as (name, bytes), the same ones for the same seed.
+
+    The name says the model, the draw's number and the paths changed (enough to rebuild the
+    case from the seed).
+    """
+    rng = random.Random(seed)
+    files = {name: split_glb((models / name).read_bytes()) for name in MODELS}
+    for k in range(count):
+        name = rng.choice(MODELS)
+        doc, blob = files[name]
+        doc = copy.deepcopy(doc)
+        changed = []
+        for _ in range(rng.choice([1, 1, 2, 3])):
+            path = rng.choice(_paths(doc, rng))
+            parent = doc
+            try:
+                for key in path[:-1]:
+                    parent = parent[key]
+                parent[path[-1]] = _neighbour(parent[path[-1]], rng)
+            except (KeyError, IndexError, TypeError):  # an earlier change moved the path away
+                continue
+            changed.append("/".join(map(str, path)))
+        data = bytearray(blob)
+        if data and rng.random() < 0.2:
+            for _ in range(rng.randrange(1, 8)):
+                data[rng.randrange(len(data))] = rng.randrange(256)
+            changed.append("bytes")
+        yield f"{name} #{k} {', '.join(changed)}", make_glb(doc, bytes(data))
