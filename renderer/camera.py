@@ -15,7 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .errors import RequestError
+from .errors import RequestError, SceneError
 from .params import CameraParams
 from .plan.geometry import look_at, perspective
 from .plan.instances import scene_box  # Scene.bounds, read once per scene
@@ -145,7 +145,14 @@ def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height
         dist = radius / math.sin(half) * 1.05
         direction = np.array([0.6, 0.55, 1.0])
         direction /= np.linalg.norm(direction)
-        pose = look_at(centre + direction * dist, centre)
+        try:
+            pose = look_at(centre + direction * dist, centre)
+        except RequestError:
+            # The scene, not the request: too small for float64 to place a camera near it.
+            raise SceneError(
+                f"the scene spans {2 * radius:.3g} units at {float(np.max(np.abs(centre))):.3g} "
+                "units from the origin: too small there for the automatic camera to frame; "
+                "give the camera's pose, or eye and target") from None
     # Near/far follow the scene: the tightest range containing its bounding sphere, so depth
     # precision does not depend on the scene's scale or distance from the origin.
     lo, hi = scene_box(scene)

@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from shadowmap.renderer import RenderParams, RequestError
+from shadowmap.renderer import RenderParams, RequestError, SceneError
 from shadowmap.renderer import testing as T
+from shadowmap.renderer.scene import scene_from_meshes
 
 pytestmark = pytest.mark.gl
 
@@ -223,6 +224,27 @@ def test_degenerate_triangles_and_a_lone_triangle(renderer):
     m, _ = iou(renderer, T.degenerate_geometry(), camera=CAMERA,
                lights=[{"direction": [-0.4, -1, -0.3]}])
     assert m.iou >= 0.95, m
+
+
+def test_a_scene_at_one_point_or_too_small_to_frame_is_a_scene_error(renderer):
+    """Every vertex at one point has nothing to draw, with any camera; the automatic camera
+    cannot frame a scene 1e-9 across a million units out, as float64 cannot place an eye near
+    it. Both are the scene's fault,
+    not the request's (a RequestError would be a 422 for a request that asked nothing odd)."""
+    import trimesh
+
+    point = trimesh.Trimesh(vertices=[[0.5, 0.5, 0.5]] * 3, faces=[[0, 1, 2]], process=False)
+    for ground in (False, True):
+        with pytest.raises(SceneError, match="lies at one point"):
+            renderer.render(scene_from_meshes([point], ["point"]),
+                            {"width": 64, "height": 48, "ground": ground, "camera": CAMERA})
+    tiny = T.transformed(T.caster_on_ground(), 1e-10, (1e6, 0.0, 0.0))
+    with pytest.raises(SceneError, match="spans 9.33e-10 units at 1e[+]06 units from the origin: "
+                                         "too small there for the automatic camera"):
+        renderer.render(tiny, {"width": 64, "height": 48})
+    # The same scene nearer the origin is framed.
+    near = T.transformed(T.caster_on_ground(), 1e-10, (1.0, 0.0, 0.0))
+    assert renderer.render(near, {"width": 64, "height": 48}).color.shape == (48, 64, 3)
 
 
 def test_two_sided_thin_sheets_cast_from_both_sides(renderer):
