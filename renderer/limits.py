@@ -464,7 +464,7 @@ def check_map_sizes(sizes: Iterable[int], gpu_max: int) -> None:
 
 
 def check_gpu_range(bounds: np.ndarray, origin: np.ndarray,
-                    points: Sequence[np.ndarray] = ()) -> None:
+                    points: Sequence[np.ndarray] = (), scene_placed: bool = False) -> None:
     """Refuse a render whose coordinates relative to the scene's centre (what the GPU gets, in
     float32) go past :data:`MAX_COORDINATE`: past it the shaders' squared distances overflow
     to infinity and the picture would silently lose its shading or shadows.
@@ -478,13 +478,16 @@ def check_gpu_range(bounds: np.ndarray, origin: np.ndarray,
     points : sequence of ndarray, shape (3,)
         The camera and the positioned lights (directional lights have no position that
         matters).
+    scene_placed : bool
+        The points that can fail were placed by the scene, not the request: the automatic
+        camera (which stands back from a huge scene) or the file's camera and lights.
 
     Raises
     ------
     SceneError
-        The scene itself is too large.
+        The scene itself is too large, or so is what it placed (``scene_placed``).
     RequestError
-        The camera or a light is too far from the scene.
+        The request's camera or light is too far from the scene.
     """
     from .errors import RequestError, SceneError
 
@@ -496,6 +499,8 @@ def check_gpu_range(bounds: np.ndarray, origin: np.ndarray,
         for p in points:
             d = float(np.max(np.abs(np.asarray(p, np.float64) - origin)))
             if not d <= MAX_COORDINATE:
-                raise RequestError(
-                    f"the camera or a light is {d:.3g} units from the scene's centre: more than "
-                    f"the GPU's float32 coordinates hold here ({MAX_COORDINATE:g})")
+                what = ("the camera (the automatic one, or the file's) or a light of the file"
+                        if scene_placed else "the camera or a light")
+                raise (SceneError if scene_placed else RequestError)(
+                    f"{what} is {d:.3g} units from the scene's centre: more than the GPU's "
+                    f"float32 coordinates hold here ({MAX_COORDINATE:g})")

@@ -478,10 +478,11 @@ class Renderer:
         lights = resolve_lights(params.lights, scene)
         check_lights(len(lights), self.limits)
         # Again with the file's camera and lights, and the resolved positions. The upload is
-        # placed at the centre of the scene's bounds (GpuScene.upload).
+        # placed at the centre of the scene's bounds (GpuScene.upload). What the request named
+        # passed above: only what the scene placed can fail here.
         origin = (lo + hi) / 2
         check_gpu_range(scene.bounds, origin, [camera.position] + [
-            lt.position for lt in lights if lt.type != "directional"])
+            lt.position for lt in lights if lt.type != "directional"], scene_placed=True)
         key = (plan_key(scene, camera, lights, origin, params, params_json)
                if self.plans.enabled else "")
         return _Prepared(scene, params, warnings, camera, lights, origin, key,

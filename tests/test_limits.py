@@ -620,3 +620,19 @@ def test_coordinates_past_float32_are_refused_before_the_gpu():
         lim.check_gpu_range(box, np.zeros(3), [np.array([1e20, 0.0, 0.0])])
     with pytest.raises(RequestError):
         lim.check_gpu_range(box, np.zeros(3), [np.array([np.inf, 0.0, 0.0])])
+    # Placed by the scene (the automatic camera standing back from it, the file's camera or
+    # lights): the scene's fault.
+    with pytest.raises(SceneError, match="the automatic one, or the file's"):
+        lim.check_gpu_range(box, np.zeros(3), [np.array([1e20, 0.0, 0.0])], scene_placed=True)
+
+
+@pytest.mark.gl
+def test_the_automatic_camera_of_a_scene_near_float32s_range_is_the_scenes_fault(renderer):
+    """A scene 1.2e18 across fits float32 about its centre, the automatic camera standing back
+    from it does not: refused as the scene's fault, not as a request's."""
+    from shadowmap.renderer import SceneError
+    from shadowmap.renderer import testing as T
+
+    huge = T.transformed(T.caster_on_ground(), 2e17)
+    with pytest.raises(SceneError, match="the camera [(]the automatic one"):
+        renderer.render(huge, {"width": 64, "height": 48})
