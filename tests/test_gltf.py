@@ -833,6 +833,26 @@ def test_a_non_affine_node_matrix_is_drawn_affine_with_a_warning():
     assert "node 'lens'" in w and "not affine" in w and "[0.5, 0.0, 0.0, 1.0]" in w, w
 
 
+def test_rotations_are_normalized_quaternions():
+    """A rotation of another length would scale and shear the node: normalized (a zero one is
+    no rotation), said past rounding; a matrix's node has no rotation to check."""
+    g = Gltf()
+    mesh = g.triangle()
+    g.node(mesh=mesh, rotation=[0, 0, 2 * math.sin(math.pi / 4), 2 * math.cos(math.pi / 4)],
+           name="double")
+    g.node(mesh=mesh, rotation=[0, 0, 0, 0], name="zero")
+    g.node(mesh=mesh, rotation=[0, 0, 0, 1.0000001])  # rounding: no word
+    g.node(mesh=mesh, rotation=[0, 0, 0, 3], matrix=np.eye(4).ravel().tolist())
+    scene = g.load()
+    double, zero, rounded, matrix = (i.matrix for i in scene.instances)
+    np.testing.assert_allclose(double[:3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+    for m in (zero, rounded, matrix):
+        np.testing.assert_allclose(m, np.eye(4), atol=1e-12)
+    assert scene.warnings == ["node 'double': its rotation has length 2, not 1; normalized",
+                              "node 'zero': its rotation has length 0, not 1; no rotation is "
+                              "used"]
+
+
 def test_fifty_thousand_instances_load_quickly():
     g = Gltf()
     box = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], np.float32)
@@ -919,6 +939,19 @@ def test_cameras_and_lights_with_their_node_transforms():
     np.testing.assert_allclose(light.pose[:3, 3], [0, 0, 5])
     assert any("orthographic" in w for w in scene.warnings)
     assert any("camera 9 does not exist" in w for w in scene.warnings)
+
+
+def test_a_light_reference_without_a_light_is_said():
+    g = one_triangle()
+    g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "point"}]}}
+    g.node(extensions={"KHR_lights_punctual": {}}, name="empty")
+    g.node(extensions={"KHR_lights_punctual": 0}, name="number")
+    scene = g.load()
+    assert scene.lights == []
+    assert scene.warnings == [
+        "node 'empty': its KHR_lights_punctual {} names no light: left out",
+        "node 'number': its KHR_lights_punctual 0 names no light: left out"]
 
 
 def test_cameras_and_lights_float32_cannot_place_are_left_out_with_a_warning():

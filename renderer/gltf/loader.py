@@ -618,7 +618,9 @@ class _Loader:
         centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2
         for i in candidates.tolist():
             node = g.nodes[i]
-            has_light = extension(node, lights_punctual.EXTENSION) is not None
+            exts = node.get("extensions")
+            # Present at all: a malformed reference is warned about by node_light.
+            has_light = isinstance(exts, dict) and lights_punctual.EXTENSION in exts
             if g.camera[i] == INVALID:
                 self.warnings.append(f"node {g.names[i]!r}: camera {brief(node.get('camera'))} "
                                      "does not exist: left out")

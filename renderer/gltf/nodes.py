@@ -205,6 +205,16 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
                                  "node graph must be a forest")
             parent[c] = i
         children[i] = kids
+    # glTF rotations are unit quaternions; another length would scale and shear the node (a
+    # zero one has no rotation at all). Normalized (identity for zero), warned past rounding.
+    with np.errstate(over="ignore", invalid="ignore"):
+        length = np.linalg.norm(r, axis=1)
+    finite = np.isfinite(length)  # a non-finite one stays: refused where drawn
+    off_unit = finite & (np.abs(length - 1.0) > 1e-3)
+    usable = length > 0.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = np.where(usable[:, None], r / np.where(usable, length, 1.0)[:, None],
+                     np.where(finite[:, None], (0.0, 0.0, 0.0, 1.0), r))
     with np.errstate(over="ignore", invalid="ignore"):  # huge TRS: refused where drawn
         local = trs_matrices(t, r, s)
     # glTF matrices are column-major: the 16 numbers are the columns. A matrix wins over TRS.
@@ -263,6 +273,11 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     warnings = [f"node {names[i]!r}: its matrix is not affine (bottom row "
                 f"{brief(m_values[k][3::4])}, not [0, 0, 0, 1]); drawn with [0, 0, 0, 1]"
                 for k, i in enumerate(m_rows) if projective[k] and in_scene[i]]
+    with_matrix = np.zeros(n, bool)
+    with_matrix[m_rows] = True  # a matrix wins over TRS: its rotation is not used
+    warnings += [f"node {names[i]!r}: its rotation has length {length[i]:.3g}, not 1; "
+                 + ("normalized" if usable[i] else "no rotation is used")
+                 for i in np.flatnonzero(off_unit & in_scene & ~with_matrix).tolist()]
     return NodeGraph(nodes, local, world, parent, np.concatenate(order), in_scene,
                      refs["mesh"], refs["skin"], refs["camera"], cast, receive, special, names,
                      warnings)

@@ -56,8 +56,13 @@ def node_light(node: dict[str, Any], lights: list[Any], pose: np.ndarray,
     pose : ndarray, shape (4, 4)
         The node's world matrix without scale; the light looks down its −Z.
     """
+    exts = node.get("extensions")
+    if not isinstance(exts, dict) or EXTENSION not in exts:
+        return None
     ref = extension(node, EXTENSION)
     if ref is None or "light" not in ref:
+        warnings.append(f"{what}: its {EXTENSION} {brief(exts[EXTENSION])} names no light: "
+                        "left out")
         return None
     li = ref["light"]
     if isinstance(li, bool) or not isinstance(li, int) or not 0 <= li < len(lights):
