@@ -1,7 +1,8 @@
 """Random mutations of real models: the values a broken exporter or a hostile client writes.
 
 Where :mod:`fuzz_cases` holds named cases, each aimed at one rule, :func:`mutations` draws many
-unnamed ones: one to three JSON values of a real ``.glb`` replaced by a neighbour of the value
+unnamed ones: one to three JSON values of a real ``.glb`` (or of one with lights or a texture
+transform added, :data:`VARIANTS`) replaced by a neighbour of the value
 (an integer off by one or doubled, a component type, a float scaled by 1e30 or set to 1e308, a
 string swapped for another glTF keyword, an array shortened or lengthened, an object losing a
 key), and now and then a few bytes of the binary chunk overwritten. Numbers stay finite in JSON:
@@ -25,6 +26,10 @@ from gltf_files import make_glb, split_glb
 #: animations and several meshes and textures.
 MODELS = ("cube.glb", "TwoCubes.glb", "BoxTextured.glb", "BoxMeshopt.glb", "Duck.glb",
           "CesiumMan.glb", "Fox.glb", "CesiumMilkTruck.glb")
+#: Variants built here from real models, so that the extensions no model in the folder uses
+#: are mutated too: the Duck under a spot, a point and a directional light
+#: (KHR_lights_punctual), and the textured box with a texture transform, a sampler and a cut-out.
+VARIANTS = ("Duck.glb+lights", "BoxTextured.glb+transform")
 _STRINGS = ("", "VEC2", "VEC3", "VEC4", "SCALAR", "MAT2", "MAT4", "data:,", "BLEND", "MASK",
             "x.bin", "image/png")
 _INTS = (5120, 5121, 5122, 5123, 5125, 5126, 2**31)
@@ -68,6 +73,37 @@ def _neighbour(old: Any, rng: random.Random) -> Any:
     return None
 
 
+def _variant(name: str, models: Path) -> tuple[dict, bytes]:
+    """The document and binary chunk of a :data:`VARIANTS` entry."""
+    base, _, extra = name.partition("+")
+    doc, blob = split_glb((models / base).read_bytes())
+    if extra == "lights":
+        doc["extensionsUsed"] = [*doc.get("extensionsUsed", []), "KHR_lights_punctual"]
+        doc.setdefault("extensions", {})["KHR_lights_punctual"] = {"lights": [
+            {"type": "spot", "intensity": 40, "range": 20, "color": [1, 0.9, 0.8],
+             "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.6}},
+            {"type": "point", "intensity": 30, "range": 50},
+            {"type": "directional", "intensity": 2}]}
+        first = len(doc["nodes"])
+        doc["nodes"] += [
+            {"translation": [0, 300, 200], "rotation": [-0.3826834, 0, 0, 0.9238795],
+             "extensions": {"KHR_lights_punctual": {"light": 0}}},
+            {"translation": [150, 200, -100], "extensions": {"KHR_lights_punctual": {"light": 1}}},
+            {"rotation": [-0.5, 0.2, 0, 0.84], "extensions": {"KHR_lights_punctual": {"light": 2}}}]
+        doc["scenes"][doc.get("scene", 0)]["nodes"] += [first, first + 1, first + 2]
+    elif extra == "transform":
+        doc["extensionsUsed"] = [*doc.get("extensionsUsed", []), "KHR_texture_transform"]
+        material = doc["materials"][0]
+        material.update(alphaMode="MASK", alphaCutoff=0.3, doubleSided=True)
+        material["pbrMetallicRoughness"]["baseColorTexture"]["extensions"] = {
+            "KHR_texture_transform": {"offset": [0.1, 0.2], "rotation": 0.3, "scale": [2.0, 0.5],
+                                      "texCoord": 0}}
+        doc["samplers"] = [{"wrapS": 33648, "wrapT": 33071, "magFilter": 9729,
+                            "minFilter": 9987}]
+        doc["textures"][0]["sampler"] = 0
+    return doc, blob
+
+
 def mutations(models: Path, count: int, seed: int) -> Iterator[tuple[str, bytes]]:
     """``count`` mutated GLB files as (name, bytes), the same ones for the same seed.
 
@@ -76,8 +112,10 @@ def mutations(models: Path, count: int, seed: int) -> Iterator[tuple[str, bytes]
     """
     rng = random.Random(seed)
     files = {name: split_glb((models / name).read_bytes()) for name in MODELS}
+    files.update({name: _variant(name, models) for name in VARIANTS})
+    names = [*MODELS, *VARIANTS]
     for k in range(count):
-        name = rng.choice(MODELS)
+        name = rng.choice(names)
         doc, blob = files[name]
         doc = copy.deepcopy(doc)
         changed = []
