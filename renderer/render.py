@@ -466,11 +466,12 @@ class Renderer:
         if params.shadows.max_map_size != top:
             params.shadows.max_map_size = top
             params_json = None
-        # Before the upload and the camera: coordinates float32 cannot hold would overflow there.
+        # Nothing to draw from any camera (the focus: a ground under a point spans 6e-30).
         lo, hi = scene.bounds if scene.focus is None else scene.focus
-        if not np.any(hi > lo):  # (the focus: a ground under a point spans 6e-30)
+        if not np.any(hi > lo):
             raise SceneError("every vertex of the scene lies at one point: no triangle has an "
                              "area to draw")
+        # Before the upload and the camera: coordinates float32 cannot hold would overflow there.
         lo, hi = scene.bounds
         check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
         t = time.perf_counter()

@@ -962,7 +962,7 @@ def test_cameras_and_lights_float32_cannot_place_are_left_out_with_a_warning():
     g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
     g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "point"},
                                                               {"type": "directional"}]}}
-    g.node(translation=[0, 1e30, 0], camera=0, name="far",
+    g.node(translation=[0, 1e30, 0], camera=0, name="far {x}",  # no format string
            extensions={"KHR_lights_punctual": {"light": 0}})
     g.node(translation=[0, 1e30, 0], extensions={"KHR_lights_punctual": {"light": 1}})
     g.node(translation=[0, 0, 1e17], camera=0, extensions={"KHR_lights_punctual": {"light": 0}})
@@ -971,8 +971,8 @@ def test_cameras_and_lights_float32_cannot_place_are_left_out_with_a_warning():
     assert cam.pose[2, 3] == 1e17
     assert [lt.type for lt in scene.lights] == ["directional", "point"]
     assert scene.warnings == [
-        f"node 'far' is 1e+30 units from the scene's centre, more than float32 coordinates hold: "
-        f"its {what} is left out" for what in ("camera", "point light")]
+        f"node 'far {{x}}' is 1e+30 units from the scene's centre, more than float32 coordinates "
+        f"hold: its {what} is left out" for what in ("camera", "point light")]
 
 
 # ------------------------------------------------------------------------------------------------

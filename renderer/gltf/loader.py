@@ -634,11 +634,11 @@ class _Loader:
             with np.errstate(over="ignore", invalid="ignore"):
                 reach = float(np.max(np.abs(pose[:3, 3] - centre)))
             far = (f"node {g.names[i]!r} is {reach:.3g} units from the scene's centre, more "
-                   "than float32 coordinates hold: its {} is left out")
+                   "than float32 coordinates hold: its ")  # + what is left out
             if g.camera[i] >= 0:
                 cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]))
                 if cam is not None and not reach <= MAX_COORDINATE:
-                    self.warnings.append(far.format("camera"))
+                    self.warnings.append(far + "camera is left out")
                 elif cam is not None:
                     cameras.append(cam)
             if has_light:
@@ -647,7 +647,7 @@ class _Loader:
                 # A directional light has no position that matters.
                 if (light is not None and light.type != "directional"
                         and not reach <= MAX_COORDINATE):
-                    self.warnings.append(far.format(f"{light.type} light"))
+                    self.warnings.append(far + f"{light.type} light is left out")
                 elif light is not None:
                     out_lights.append(light)
         return cameras, out_lights

@@ -87,7 +87,8 @@ class NodeGraph:
     #: (EXT_mesh_gpu_instancing, KHR_lights_punctual).
     special: np.ndarray
     names: list[str]
-    #: What was repaired in the graph of the drawn scene (a non-affine node matrix).
+    #: What was repaired in the graph of the drawn scene (a non-affine node matrix, a rotation
+    #: that is not a unit quaternion).
     warnings: list[str]
 
     def scene_nodes(self) -> np.ndarray:
