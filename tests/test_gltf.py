@@ -898,6 +898,29 @@ def test_gpu_instancing_makes_one_instance_per_entry():
         np.testing.assert_allclose(inst.bounds, [w.min(0), w.max(0)], atol=1e-6)
 
 
+def test_gpu_instancing_rotations_are_made_unit_quaternions():
+    """Rotations stored as normalized bytes are a step from unit length: normalized without a
+    word; a doubled one and a zero one are counted in a warning."""
+    g = Gltf()
+    g.doc["extensionsUsed"] = ["EXT_mesh_gpu_instancing"]
+    quarter = [0, 0, 90, 90]  # a quarter turn about z, as normalized bytes: length 1.0021
+    bytes_ = g.accessor(np.array([quarter, [0, 0, 0, 127]], np.int8), ctype=BYTE,
+                        normalized=True)
+    floats = g.accessor(np.array([[0, 0, 0, 2], [0, 0, 0, 0]], np.float32))
+    g.node(mesh=g.triangle(), name="bytes",
+           extensions={"EXT_mesh_gpu_instancing": {"attributes": {"ROTATION": bytes_}}})
+    g.node(mesh=g.triangle(), name="floats",
+           extensions={"EXT_mesh_gpu_instancing": {"attributes": {"ROTATION": floats}}})
+    scene = g.load()
+    for inst in scene.instances:
+        rot = inst.matrix[:3, :3]
+        np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(scene.instances[0].matrix[:3, :3],
+                               [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+    assert scene.warnings == ["node 'floats': 2 EXT_mesh_gpu_instancing rotations are not unit "
+                              "quaternions: normalized (a zero one is no rotation)"]
+
+
 def test_instancing_counts_towards_the_triangle_precheck():
     g = Gltf()
     ext = {"attributes": {"TRANSLATION": g.accessor(np.zeros((1000, 3)))}}

@@ -256,7 +256,8 @@ class _Loader:
         prims = self._mesh_use((m, -1, weights, -1))
         local = None
         if ext is not None:
-            local = gpu_instancing.instance_matrices(ext, self.accessors, f"node {i}")
+            local = gpu_instancing.instance_matrices(ext, self.accessors,
+                                                     f"node {g.names[i]!r}", self.warnings)
         if local is None:
             return [_Record(one, p, g.world[one], None) for p in prims if p is not None]
         mats = g.world[i] @ local

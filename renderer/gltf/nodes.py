@@ -96,6 +96,40 @@ class NodeGraph:
         return np.flatnonzero(self.in_scene)
 
 
+#: How far from 1 a rotation quaternion's length may be before its normalization is worth a
+#: warning: float rounding is not, nor the steps of a rotation stored as normalized bytes (at
+#: most about 0.008 from 1).
+ROTATION_SLACK = 0.02
+
+
+def unit_quaternions(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """glTF rotations as unit quaternions.
+
+    Another length would scale and shear what they turn; a zero one turns nothing (the
+    identity is used); a non-finite one is kept, to be refused where it is drawn.
+
+    Parameters
+    ----------
+    r : ndarray, shape (N, 4)
+        XYZW.
+
+    Returns
+    -------
+    unit : ndarray, shape (N, 4), float64
+    length : ndarray, shape (N,)
+        The given lengths.
+    off : ndarray, shape (N,), bool
+        Finite rotations whose length was past :data:`ROTATION_SLACK` from 1 (zero included).
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        length = np.linalg.norm(r, axis=1)
+        finite = np.isfinite(length)
+        usable = length > 0.0
+        unit = np.where(usable[:, None], r / np.where(usable, length, 1.0)[:, None],
+                        np.where(finite[:, None], (0.0, 0.0, 0.0, 1.0), r))
+    return unit, length, finite & (np.abs(length - 1.0) > ROTATION_SLACK)
+
+
 _VECTORS = {"matrix": 16, "translation": 3, "rotation": 4, "scale": 3}
 _REFS = ("mesh", "skin", "camera")
 _COLLECTED = (*_VECTORS, *_REFS, "children", "extras", "name", "weights", "extensions")
@@ -206,16 +240,7 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
                                  "node graph must be a forest")
             parent[c] = i
         children[i] = kids
-    # glTF rotations are unit quaternions; another length would scale and shear the node (a
-    # zero one has no rotation at all). Normalized (identity for zero), warned past rounding.
-    with np.errstate(over="ignore", invalid="ignore"):
-        length = np.linalg.norm(r, axis=1)
-    finite = np.isfinite(length)  # a non-finite one stays: refused where drawn
-    off_unit = finite & (np.abs(length - 1.0) > 1e-3)
-    usable = length > 0.0
-    with np.errstate(over="ignore", invalid="ignore"):
-        r = np.where(usable[:, None], r / np.where(usable, length, 1.0)[:, None],
-                     np.where(finite[:, None], (0.0, 0.0, 0.0, 1.0), r))
+    r, length, off_unit = unit_quaternions(r)
     with np.errstate(over="ignore", invalid="ignore"):  # huge TRS: refused where drawn
         local = trs_matrices(t, r, s)
     # glTF matrices are column-major: the 16 numbers are the columns. A matrix wins over TRS.
@@ -277,7 +302,7 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     with_matrix = np.zeros(n, bool)
     with_matrix[m_rows] = True  # a matrix wins over TRS: its rotation is not used
     warnings += [f"node {names[i]!r}: its rotation has length {length[i]:.3g}, not 1; "
-                 + ("normalized" if usable[i] else "no rotation is used")
+                 + ("normalized" if length[i] > 0 else "no rotation is used")
                  for i in np.flatnonzero(off_unit & in_scene & ~with_matrix).tolist()]
     return NodeGraph(nodes, local, world, parent, np.concatenate(order), in_scene,
                      refs["mesh"], refs["skin"], refs["camera"], cast, receive, special, names,

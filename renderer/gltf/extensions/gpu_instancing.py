@@ -10,7 +10,7 @@ import numpy as np
 
 from ...errors import SceneError
 from ..accessors import FLOAT_ONLY, NORMALIZED_INTS, PLAIN_INTS, Accessors, check_type
-from ..nodes import trs_matrices
+from ..nodes import trs_matrices, unit_quaternions
 
 EXTENSION = "EXT_mesh_gpu_instancing"
 _TYPES = {"TRANSLATION": "VEC3", "ROTATION": "VEC4", "SCALE": "VEC3"}
@@ -38,8 +38,11 @@ def instance_count(ext: dict[str, Any], accessors: Accessors, what: str) -> int:
     return counts.pop() if counts else 0
 
 
-def instance_matrices(ext: dict[str, Any], accessors: Accessors, what: str) -> np.ndarray | None:
-    """The per-instance local matrices (instance-to-node).
+def instance_matrices(ext: dict[str, Any], accessors: Accessors, what: str,
+                      warnings: list[str]) -> np.ndarray | None:
+    """The per-instance local matrices (instance-to-node), rotations made unit quaternions
+    (:func:`~..nodes.unit_quaternions`; those that were far from it are counted in
+    ``warnings``).
 
     Returns
     -------
@@ -68,6 +71,9 @@ def instance_matrices(ext: dict[str, Any], accessors: Accessors, what: str) -> n
             raise SceneError(reason)
         arrays[key] = accessors.read_float(idx)
     t = arrays.get("TRANSLATION", np.zeros((k, 3)))
-    r = arrays.get("ROTATION", np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)))
+    r, _, off = unit_quaternions(arrays.get("ROTATION", np.tile([0.0, 0.0, 0.0, 1.0], (k, 1))))
+    if off.any():
+        warnings.append(f"{what}: {int(off.sum())} {EXTENSION} rotations are not unit "
+                        "quaternions: normalized (a zero one is no rotation)")
     s = arrays.get("SCALE", np.ones((k, 3)))
     return trs_matrices(t, r, s)
