@@ -20,6 +20,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from gltf_files import make_glb, split_glb
 
 #: Models mutated: the small files of the models folder, and ones with skins, morph targets,
@@ -28,8 +30,10 @@ MODELS = ("cube.glb", "TwoCubes.glb", "BoxTextured.glb", "BoxMeshopt.glb", "Duck
           "CesiumMan.glb", "Fox.glb", "CesiumMilkTruck.glb")
 #: Variants built here from real models, so that the extensions no model in the folder uses
 #: are mutated too: the Duck under a spot, a point and a directional light
-#: (KHR_lights_punctual), and the textured box with a texture transform, a sampler and a cut-out.
-VARIANTS = ("Duck.glb+lights", "BoxTextured.glb+transform")
+#: (KHR_lights_punctual), the textured box with a texture transform, a sampler and a cut-out,
+#: and the cube drawn 64 times by EXT_mesh_gpu_instancing (float translations and scales,
+#: rotations as normalized bytes).
+VARIANTS = ("Duck.glb+lights", "BoxTextured.glb+transform", "cube.glb+instancing")
 _STRINGS = ("", "VEC2", "VEC3", "VEC4", "SCALAR", "MAT2", "MAT4", "data:,", "BLEND", "MASK",
             "x.bin", "image/png")
 _INTS = (5120, 5121, 5122, 5123, 5125, 5126, 2**31)
@@ -101,6 +105,32 @@ def _variant(name: str, models: Path) -> tuple[dict, bytes]:
         doc["samplers"] = [{"wrapS": 33648, "wrapT": 33071, "magFilter": 9729,
                             "minFilter": 9987}]
         doc["textures"][0]["sampler"] = 0
+    elif extra == "instancing":
+        doc["extensionsUsed"] = [*doc.get("extensionsUsed", []), "EXT_mesh_gpu_instancing"]
+        k = 64
+        grid = np.stack(np.meshgrid(np.arange(8), np.arange(8), indexing="ij"), -1).reshape(k, 2)
+        columns = {
+            "TRANSLATION": (np.c_[grid[:, 0] * 3.0, np.zeros(k), grid[:, 1] * 3.0], 5126, False),
+            "ROTATION": (np.tile([0, 90, 0, 90], (k, 1)), 5120, True),
+            "SCALE": (np.c_[np.linspace(0.5, 1.5, k)].repeat(3, axis=1), 5126, False),
+        }
+        attributes = {}
+        for key, (values, ctype, normalized) in columns.items():
+            data = np.asarray(values, np.int8 if ctype == 5120 else np.float32).tobytes()
+            blob += b"\0" * (-len(blob) % 4)
+            doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob),
+                                       "byteLength": len(data)})
+            blob += data
+            accessor = {"bufferView": len(doc["bufferViews"]) - 1, "componentType": ctype,
+                        "count": k, "type": "VEC4" if key == "ROTATION" else "VEC3"}
+            if normalized:
+                accessor["normalized"] = True
+            doc["accessors"].append(accessor)
+            attributes[key] = len(doc["accessors"]) - 1
+        doc["buffers"][0]["byteLength"] = len(blob)
+        mesh_node = next(node for node in doc["nodes"] if "mesh" in node)
+        mesh_node.setdefault("extensions", {})["EXT_mesh_gpu_instancing"] = {
+            "attributes": attributes}
     return doc, blob
 
 

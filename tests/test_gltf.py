@@ -359,6 +359,20 @@ def test_position_of_the_wrong_type_is_refused(kind, ctype):
         g.load()
 
 
+@pytest.mark.parametrize("ctype, normalized, message", [
+    (UBYTE, 1, "normalized must be true or false, not 1"),
+    (UBYTE, "yes", "normalized must be true or false, not 'yes'"),
+    (FLOAT, True, "normalized must be false for FLOAT"),
+])
+def test_accessor_normalized_flag_is_checked(ctype, normalized, message):
+    g = Gltf()
+    values = np.zeros((3, 3))
+    g.node(mesh=g.triangle(attributes={"COLOR_0": g.accessor(values, ctype=ctype,
+                                                             normalized=normalized)}))
+    with pytest.raises(SceneError, match=f"accessor 0: {message}"):
+        g.load()
+
+
 def test_external_buffers_come_only_from_resources():
     g = one_triangle()
     doc, blob = split_glb(g.glb())

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError, UnsupportedExtension
-from .reader import Buffers, get_index, get_int, get_list
+from .reader import Buffers, brief, get_index, get_int, get_list
 
 BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT, UNSIGNED_INT, FLOAT = 5120, 5121, 5122, 5123, 5125, 5126
 
@@ -146,7 +146,10 @@ class Accessors:
             raise SceneError(f"{what}: type {kind!r} is not a glTF 2.0 accessor type")
         count = get_int(spec, "count", what, minimum=1)
         normalized = spec.get("normalized", False)
-        if not isinstance(normalized, bool) or (normalized and ctype in (FLOAT, UNSIGNED_INT)):
+        if not isinstance(normalized, bool):
+            raise SceneError(f"{what}: normalized must be true or false, not "
+                             f"{brief(normalized)}")
+        if normalized and ctype in (FLOAT, UNSIGNED_INT):
             raise SceneError(f"{what}: normalized must be false for {COMPONENT_NAMES[ctype]}")
         return AccessorInfo(index, ctype, kind, count, normalized)
 
