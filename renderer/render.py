@@ -467,8 +467,8 @@ class Renderer:
             params.shadows.max_map_size = top
             params_json = None
         # Nothing to draw from any camera (the focus: a ground under a point spans 6e-30).
-        lo, hi = scene.bounds if scene.focus is None else scene.focus
-        if not np.any(hi > lo):
+        focus = scene.bounds if scene.focus is None else scene.focus
+        if not np.any(focus[1] > focus[0]):
             raise SceneError("every vertex of the scene lies at one point: no triangle has an "
                              "area to draw")
         # Before the upload and the camera: coordinates float32 cannot hold would overflow there.

@@ -24,7 +24,7 @@ from .accessors import UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, c
 from .admission import admit
 from .extensions import check_extensions, gpu_instancing, lights_punctual, mesh_quantization
 from .extensions import texture_transform as tt
-from .materials import COLOUR_SLACK, Materials, MaterialUse
+from .materials import Materials, MaterialUse, clamp_colour
 from .nodes import INVALID, NodeGraph, build_graph
 from .primitives import MODE_NAMES, RESTART, TRIANGLES, triangulate
 from .reader import Buffers, Document, Resolver, brief, extension, get_index, get_list
@@ -548,13 +548,12 @@ class _Loader:
             self.warnings.append(f"{what}: {int((~finite).any(axis=1).sum())} vertex colours "
                                  "(COLOR_0) are not finite; drawn white")
             c = np.where(finite, c, 1.0)
-        low, high = c.min(initial=0.0), c.max(initial=1.0)
-        if low < -COLOUR_SLACK or high > 1.0 + COLOUR_SLACK:
-            # glTF's range (a float COLOR_0 may hold anything): clamped, but said, since the
-            # file meant something else (an exporter's rounding past 1 is not worth a word).
+        # A float COLOR_0 may hold anything: clamped to glTF's range, and said.
+        clamped, outside = clamp_colour(c)
+        if outside:
             self.warnings.append(f"{what}: vertex colours (COLOR_0) outside [0, 1] "
-                                 f"(from {low:.3g} to {high:.3g}); clamped")
-        c = np.clip(c, 0.0, 1.0)
+                                 f"(from {c.min():.3g} to {c.max():.3g}); clamped")
+        c = clamped
         if np.allclose(c, 1.0):
             return None  # all-white vertex colours change nothing: leave the path out
         return c.astype(np.float32)
@@ -619,9 +618,7 @@ class _Loader:
         centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2
         for i in candidates.tolist():
             node = g.nodes[i]
-            exts = node.get("extensions")
-            # Present at all: a malformed reference is warned about by node_light.
-            has_light = isinstance(exts, dict) and lights_punctual.EXTENSION in exts
+            has_light = lights_punctual.names_extension(node)
             if g.camera[i] == INVALID:
                 self.warnings.append(f"node {g.names[i]!r}: camera {brief(node.get('camera'))} "
                                      "does not exist: left out")

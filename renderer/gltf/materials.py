@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import LimitError, SceneError
 from ..scene import Material, safe_uri
@@ -39,6 +40,15 @@ ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
 #: How far past glTF's [0, 1] a colour (factor or COLOR_0) may lie before its clamping is
 #: worth a warning: an exporter's rounding just past 1 is not.
 COLOUR_SLACK = 1e-3
+
+
+def clamp_colour(values: npt.ArrayLike) -> tuple[np.ndarray, bool]:
+    """``values`` clipped to glTF's colour range [0, 1], and whether they lay further outside
+    it than :data:`COLOUR_SLACK` (worth a warning). Any shape; float64 out."""
+    values = np.asarray(values, np.float64)
+    outside = bool(values.size) and (values.min() < -COLOUR_SLACK
+                                     or values.max() > 1.0 + COLOUR_SLACK)
+    return np.clip(values, 0.0, 1.0), outside
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,13 +203,12 @@ class Materials:
         if (isinstance(value, list) and len(value) == 4
                 and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
                 and all(math.isfinite(v) for v in value)):
-            factor = np.asarray(value, np.float64)
-            if factor.min() < -COLOUR_SLACK or factor.max() > 1.0 + COLOUR_SLACK:
-                # glTF's range; outside it the shading (and float32) would quietly go wrong.
-                # An exporter's rounding just past 1 is clamped without a word.
+            # Outside glTF's range the shading (and float32) would quietly go wrong.
+            factor, outside = clamp_colour(value)
+            if outside:
                 self.warnings.append(f"{label}: base colour factor {brief(value)} is outside "
                                      "[0, 1]; clamped")
-            return np.clip(factor, 0.0, 1.0).astype(np.float32)
+            return factor.astype(np.float32)
         self.warnings.append(f"{label}: base colour factor {brief(value)} is not 4 finite numbers; "
                              "white is used")
         return np.ones(4, np.float32)

@@ -47,6 +47,13 @@ def document_lights(doc: dict[str, Any]) -> list[Any]:
     return lights if isinstance(lights, list) else []
 
 
+def names_extension(node: dict[str, Any]) -> bool:
+    """The node's ``extensions`` hold this one's key, well formed or not (a malformed light
+    reference is warned about by :func:`node_light`, not passed over)."""
+    exts = node.get("extensions")
+    return isinstance(exts, dict) and EXTENSION in exts
+
+
 def node_light(node: dict[str, Any], lights: list[Any], pose: np.ndarray,
                warnings: list[str], what: str) -> SceneLight | None:
     """The light a node places, with its (scale-free) world pose, or None.
@@ -56,13 +63,12 @@ def node_light(node: dict[str, Any], lights: list[Any], pose: np.ndarray,
     pose : ndarray, shape (4, 4)
         The node's world matrix without scale; the light looks down its −Z.
     """
-    exts = node.get("extensions")
-    if not isinstance(exts, dict) or EXTENSION not in exts:
+    if not names_extension(node):
         return None
     ref = extension(node, EXTENSION)
     if ref is None or "light" not in ref:
-        warnings.append(f"{what}: its {EXTENSION} {brief(exts[EXTENSION])} names no light: "
-                        "left out")
+        warnings.append(f"{what}: its {EXTENSION} {brief(node['extensions'][EXTENSION])} names "
+                        "no light: left out")
         return None
     li = ref["light"]
     if isinstance(li, bool) or not isinstance(li, int) or not 0 <= li < len(lights):
