@@ -20,7 +20,7 @@ from ..gl.programs import Program, ProgramCache
 from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene
 from ..limits import MAX_CASCADES
 from ..params import RenderParams
-from ..plan import RenderPlan
+from ..plan import LightShadow, RenderPlan
 from ..plan import shadow_region as SR
 from ..scene import Material, instance_arrays
 from ..shader_constants import LIGHT_TYPES
@@ -387,6 +387,65 @@ def _texel_axes(proj: np.ndarray) -> tuple[float, float]:
     return (m / x, m / y)
 
 
+def map2d_plane_factors(plan: LightShadow, step: float, quantisation_steps: float
+                 ) -> tuple[tuple[float, float, float, float], tuple[float, float, float, float]]:
+    """The receiver plane's per-map factors of ``shaders/chunks/shadow_2d.glsl``
+    (``u_map2d_plane``, ``u_map2d_depth``): quotients of the map's size, depth range, texel and
+    axes, divided once here instead of on every pixel.
+
+    With ``span = far - near``, ``size`` the map's side and ``(ax, ay)`` its :func:`_texel_axes`,
+    a map's world texel is ``texel`` (orthographic) or ``texel_w * w`` at the lookup's depth
+    ``w`` (perspective); the factors of a perspective map are per unit of ``w``:
+
+    - plane ``xy``: the tangent per unit of the plane's coefficients: ``span / (texel size a)``
+      (orthographic), ``1 / (texel_w size a)`` (perspective; the shader scales it by
+      ``w / (w - (a, b) . uv)``);
+    - plane ``zw``: the stored depth's change per texel per unit of tangent, ``a texel / span``;
+    - depth: ``(texel / span, quantisation_steps * step, 1 / span, span)``.
+    """
+    span = _span(plan.near, plan.far)
+    size = float(plan.map_size)
+    ax, ay = _texel_axes(plan.proj)
+    tx, ty = plan.texel
+    texel = ty if plan.kind == "perspective" else tx
+    texel = texel if texel > 0.0 else 1.0  # as _span
+    if plan.kind == "perspective":
+        tan = (1.0 / (texel * size * ax), 1.0 / (texel * size * ay))
+    else:
+        tan = (span / (texel * size * ax), span / (texel * size * ay))
+    plane = (*tan, ax * texel / span, ay * texel / span)
+    depth = (texel / span, quantisation_steps * step, 1.0 / span, span)
+    return plane, depth
+
+
+def _span(near: float, far: float) -> float:
+    """A map's depth range ``far - near``: a fit keeps it positive, the guard keeps a degenerate
+    one finite."""
+    span = far - near
+    return span if span > 0.0 else 1.0
+
+
+def cube_plane_factors(plan: LightShadow, step: float, quantisation_steps: float
+                   ) -> tuple[float, float, float, float]:
+    """A cube map's factors of ``shaders/chunks/shadow_cube.glsl`` (``u_mapcube_depth``):
+    ``(1 / span, 2 / size, 2 / (size span), quantisation_steps * step)``; a face's texel is
+    ``2 depth / size`` world units at face depth ``depth`` (90-degree faces)."""
+    span = _span(plan.near, plan.far)
+    size = float(plan.map_size)
+    return (1.0 / span, 2.0 / size, 2.0 / (size * span), quantisation_steps * step)
+
+
+def cascade_plane_factors(c: LightShadow, step: float, quantisation_steps: float
+               ) -> tuple[float, float, float, float]:
+    """A cascade's factors of ``shaders/chunks/shadow_csm.glsl`` (``u_csm_depth``): with its
+    world texel ``texel`` (larger side), ``span = far - near`` and its :func:`_texel_axes`
+    ``(ax, ay)``, ``(ax texel / span, ay texel / span, texel / span,
+    quantisation_steps * step)``."""
+    texel_t = c.texel[0] / _span(c.near, c.far)
+    ax, ay = _texel_axes(c.proj)
+    return (ax * texel_t, ay * texel_t, texel_t, quantisation_steps * step)
+
+
 def _family(m: ShadowMap) -> str:
     """Which of the camera pass's map families samples ``m``: "2d", "cube" or "csm"."""
     if m.plan.cascades:
@@ -529,51 +588,61 @@ class _FrameState:
         if self.maps:
             b = p.shadows.bias
             out.append(("u_bias", (b.constant, b.slope, b.slope_max, b.normal_offset)))
-            out.append(("u_bias_steps", b.quantisation_steps))
             two_d = [m for m in self.maps if _family(m) == "2d"]
             cubes = [m for m in self.maps if _family(m) == "cube"]
             cascaded = [m for m in self.maps if _family(m) == "csm"]
             if cascaded:
-                out += self._cascade_uniforms(units, cascaded)
+                out += self._cascade_uniforms(units, cascaded, b.quantisation_steps,
+                                              b.normal_offset > 0)
             if two_d:
                 out.append(("u_map2d", [units[self.maps.index(m)] for m in two_d]))
                 out.append(("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d]))
                 out.append(("u_map2d_range", [(m.plan.near, m.plan.far, m.step, m.plan.map_size)
                                               for m in two_d]))
-                out.append(("u_map2d_texel", [m.plan.texel for m in two_d]))
-                out.append(("u_map2d_axes", [_texel_axes(m.plan.proj) for m in two_d]))
+                if b.normal_offset > 0:
+                    out.append(("u_map2d_texel", [m.plan.texel for m in two_d]))
+                factors = [map2d_plane_factors(m.plan, m.step, b.quantisation_steps)
+                           for m in two_d]
+                out.append(("u_map2d_plane", [f[0] for f in factors]))
+                out.append(("u_map2d_depth", [f[1] for f in factors]))
             if cubes:
                 out.append(("u_mapcube", [units[self.maps.index(m)] for m in cubes]))
                 out.append(("u_mapcube_position", [m.plan.position for m in cubes]))
                 out.append(("u_mapcube_range", [(m.plan.near, m.plan.far, m.plan.map_size, m.step)
                                                 for m in cubes]))
+                out.append(("u_mapcube_depth", [
+                    cube_plane_factors(m.plan, m.step, b.quantisation_steps) for m in cubes]))
         # As arrays once (Program.set takes them as they are, without converting each time).
         values = [(name, np.asarray(v)) for name, v in out]
         self._uniforms = (key, values)
         return values
 
-    def _cascade_uniforms(self, units: list[int], cascaded: list[ShadowMap]
+    def _cascade_uniforms(self, units: list[int], cascaded: list[ShadowMap],
+                          quantisation_steps: float, normal_offset: bool
                           ) -> list[tuple[str, object]]:
         """Per cascaded light, its array texture and size; per cascade (``slot * MAX_CASCADES
-        + k``, unused entries left as they are), its matrices, depth range, texel and split."""
+        + k``, unused entries left as they are), its matrices, receiver-plane factors
+        (:func:`cascade_plane_factors`), split and (with a normal offset) texel."""
         n = len(cascaded) * MAX_CASCADES
         matrix = np.tile(np.eye(4), (n, 1, 1))
         view = np.tile(np.eye(4), (n, 1, 1))
-        rng = np.tile([0.0, 1.0, 0.0], (n, 1))
+        depth = np.zeros((n, 4))
         texel = np.ones(n)
-        axes = np.ones((n, 2))
         split = np.zeros((n, 2))
         for s, m in enumerate(cascaded):
             for k, c in enumerate(m.plan.cascades):
                 j = s * MAX_CASCADES + k
                 matrix[j] = BIAS @ c.proj @ c.view
                 view[j] = c.view
-                rng[j] = (c.near, c.far, m.step)
+                depth[j] = cascade_plane_factors(c, m.step, quantisation_steps)
                 texel[j] = c.texel[0]
-                axes[j] = _texel_axes(c.proj)
                 split[j] = (min(c.split[1], 3e38), c.blend)
-        return [("u_mapcsm", [units[self.maps.index(m)] for m in cascaded]),
-                ("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded]),
-                ("u_camera_forward", -self.plan.camera.pose[:3, 2]),
-                ("u_csm_matrix", matrix), ("u_csm_view", view), ("u_csm_range", rng),
-                ("u_csm_texel", texel), ("u_csm_axes", axes), ("u_csm_split", split)]
+        out: list[tuple[str, object]] = [
+            ("u_mapcsm", [units[self.maps.index(m)] for m in cascaded]),
+            ("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded]),
+            ("u_camera_forward", -self.plan.camera.pose[:3, 2]),
+            ("u_csm_matrix", matrix), ("u_csm_view", view), ("u_csm_depth", depth),
+            ("u_csm_split", split)]
+        if normal_offset:
+            out.append(("u_csm_texel", texel))
+        return out

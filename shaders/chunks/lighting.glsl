@@ -55,14 +55,16 @@ float light_attenuation(int i, vec3 p, out vec3 l) {
 
 #if NUM_MAPS_2D > 0 || NUM_MAPS_CUBE > 0 || NUM_MAPS_CSM > 0
 uniform vec4 u_bias;         // constant, slope, slope max, normal offset (texels)
-uniform float u_bias_steps;  // quantisation bias in steps of the stored depth (each map its own)
 // PLANE_SLOPE_MAX (injected): the steepest receiver plane (tan of its angle to the light) the
 // per-texel comparison follows, that of the most grazing surface that still counts as facing the
 // light; the bias's own slope term stops at slope_max. A plane compared at each texel's centre
 // is exact at any angle: a lower clamp put false shadow on every surface steeper than it.
 
-// Depth bias in world units at a receiver whose texel has world size `texel`, for a surface at
-// angle acos(cos_l) to the light: a texel-sized constant plus the depth change across a texel.
+// Depth bias at a receiver whose texel has size `texel`, for a surface at angle acos(cos_l) to
+// the light: a texel-sized constant plus the depth change across a texel, in the units of
+// `texel` (the lookups pass its size in stored depth: texel / (far - near)). The quantisation
+// bias (`shadows.bias.quantisation_steps` steps of each map's stored depth) comes with each
+// map's uniforms.
 float bias_world(float texel, float tan_l) {
     return texel * (u_bias.x + u_bias.y * min(tan_l, u_bias.z));
 }

@@ -10,10 +10,20 @@ in vec4 v_map2d[NUM_MAPS_2D];              // u_map2d_matrix x world, from camer
 uniform MAP2D u_map2d[NUM_MAPS_2D];
 uniform mat4 u_map2d_matrix[NUM_MAPS_2D];  // world -> biased light clip (normal offset)
 uniform vec4 u_map2d_range[NUM_MAPS_2D];   // near, far, one step of the stored depth, map size
+#if NORMAL_OFFSET
 // World size of a texel at light depth d: x + y * d (orthographic: y = 0; perspective: x = 0).
 uniform vec2 u_map2d_texel[NUM_MAPS_2D];
-// A texel along the map's x and y axes over that size (< 1 along the shorter side of an oblong fit).
-uniform vec2 u_map2d_axes[NUM_MAPS_2D];
+#endif
+// The receiver plane's factors, quotients of the map's size, depth range, texel and axes worked
+// out once per frame (camera_pass.py, `map2d_plane_factors`): a software rasterizer would divide
+// them again on every pixel. A perspective map's factors are per unit of the lookup's depth w
+// (its texel grows with w).
+//   plane: xy, the tangent per unit of the plane's coefficients (a, b) (see below);
+//          zw, the stored depth's change per texel per unit of tangent.
+//   depth: x, the texel's size in stored depth (texel / span); y, the quantisation bias in stored
+//          depth; z, 1 / span; w, span (far - near).
+uniform vec4 u_map2d_plane[NUM_MAPS_2D];
+uniform vec4 u_map2d_depth[NUM_MAPS_2D];
 // Per slot, 1 for a perspective map (spot lights), 0 for an orthographic one: a constant of the
 // variant, as a runtime choice would run both projections' code on every pixel.
 const int MAP2D_PERSP[NUM_MAPS_2D] = int[NUM_MAPS_2D](MAP2D_PERSPECTIVE);
@@ -49,10 +59,11 @@ Map2dDerivatives map2d_derivatives() {
 float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp, vec3 p,
                          vec3 ng, float cos_l) {
     vec4 range = u_map2d_range[m];
-    float span = range.y - range.x;
     float size = range.w;
-    vec2 tx = u_map2d_texel[m];
+    vec4 k = u_map2d_plane[m];
+    vec4 z = u_map2d_depth[m];
 #if NORMAL_OFFSET
+    vec2 tx = u_map2d_texel[m];
     float texel0 = persp ? tx.y * c.w : tx.x;
     vec3 q = p + ng * (u_bias.w * texel0 * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
     c = u_map2d_matrix[m] * vec4(q, 1.0);
@@ -61,27 +72,29 @@ float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp,
     // nor behind the light, where a point light fitted by a frustum around its casters
     // (plan.fit.caster_cone) still shines: the divide below would fold such points into the map.
     if (persp && c.w <= range.x) return 1.0;
-    vec2 uv = persp ? c.xy / c.w : c.xy;
+    float inv_w = persp ? 1.0 / c.w : 1.0;
+    vec2 uv = persp ? c.xy * inv_w : c.xy;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    float t = persp ? (c.w - range.x) / span : c.z;
-    float texel = persp ? tx.y * c.w : tx.x;
+    float t = persp ? (c.w - range.x) * z.z : c.z;
     // Solve (cx.xy; cy.xy) (a, b) = (cx, cy).depth for the plane's coefficients. A receiver
     // seen edge-on by the camera makes the system singular: its tangent goes to the clamp.
     vec2 dd = persp ? vec2(cx.w, cy.w) : vec2(cx.z, cy.z);
     vec2 ab = vec2(dd.x * cy.y - cx.y * dd.y, cx.x * dd.y - dd.x * cy.x)
-        / (cx.x * cy.y - cx.y * cy.x);
-    // The depth's change per texel at the lookup point, in t units.
-    vec2 per_texel = persp ? ab * (c.w * c.w / ((c.w - dot(ab, c.xy)) * size * span))
-                           : ab / size;
+        * (1.0 / (cx.x * cy.y - cx.y * cy.x));
     // The plane's tangent to the light along each map axis (world depth over world texel), held
-    // to PLANE_SLOPE_MAX; NaN (a degenerate triangle) counts as flat.
-    vec2 tan_axes = clamp(per_texel * (span / texel) / u_map2d_axes[m], -PLANE_SLOPE_MAX,
-                          PLANE_SLOPE_MAX);
+    // to PLANE_SLOPE_MAX; NaN (a degenerate triangle) counts as flat. Orthographic: the depth
+    // changes by (a, b) / size per texel, in t units; perspective: by
+    // (a, b) w^2 / ((w - (a, b) . uv) size span) at the lookup point.
+    vec2 tan_axes = ab * k.xy;
+    if (persp) tan_axes *= c.w / (c.w - dot(ab, c.xy));
+    tan_axes = clamp(tan_axes, -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX);
     tan_axes = mix(tan_axes, vec2(0.0), isnan(tan_axes));
+    // The texel's size in stored depth (t units), which bias_world scales.
+    float texel_t = persp ? z.x * c.w : z.x;
     Plane pl;
-    pl.ref = t - bias_world(texel, length(tan_axes)) / span - u_bias_steps * range.z;
-    pl.slope = tan_axes * u_map2d_axes[m] * (texel / span);
-    pl.persp = persp ? -pl.slope * span / c.w : vec2(0.0);
+    pl.ref = t - bias_world(texel_t, length(tan_axes)) - z.y;
+    pl.slope = tan_axes * (persp ? k.zw * c.w : k.zw);
+    pl.persp = persp ? -tan_axes * k.zw * z.w : vec2(0.0);
     return shadow_2d(map, uv, pl, size);
 }
 

@@ -11,9 +11,14 @@
 uniform MAPARRAY u_mapcsm[NUM_MAPS_CSM];
 uniform mat4 u_csm_matrix[NUM_MAPS_CSM * MAX_CASCADES];  // world -> biased light clip
 uniform mat4 u_csm_view[NUM_MAPS_CSM * MAX_CASCADES];    // world -> light view (receiver plane)
-uniform vec3 u_csm_range[NUM_MAPS_CSM * MAX_CASCADES];   // near, far, one step of the stored depth
+#if NORMAL_OFFSET
 uniform float u_csm_texel[NUM_MAPS_CSM * MAX_CASCADES];  // world size of one texel (larger side)
-uniform vec2 u_csm_axes[NUM_MAPS_CSM * MAX_CASCADES];    // a texel along x and y over that size
+#endif
+// The receiver plane's factors, worked out once per frame (camera_pass.py,
+// `cascade_plane_factors`) as a software rasterizer would divide them again on every pixel: xy,
+// the stored depth's change per texel along x and y per unit of tangent; z, the texel's size in
+// stored depth (its world size over far - near); w, the quantisation bias in stored depth.
+uniform vec4 u_csm_depth[NUM_MAPS_CSM * MAX_CASCADES];
 // Camera distances along the view axis: where each cascade ends, and the band before that
 // end over which it fades into the next one.
 uniform vec2 u_csm_split[NUM_MAPS_CSM * MAX_CASCADES];
@@ -24,21 +29,18 @@ uniform vec3 u_camera_forward;
 // visibility_2d_from for an orthographic 2D map).
 float visibility_layer(MAPARRAY map, int j, float layer, float size, vec3 p, vec3 ng,
                        float cos_l, float tan_l) {
-    float texel = u_csm_texel[j];
     vec3 q = p;
 #if NORMAL_OFFSET
-    q = p + ng * (u_bias.w * texel * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
+    q = p + ng * (u_bias.w * u_csm_texel[j] * sqrt(max(1.0 - cos_l * cos_l, 0.0)));
 #endif
     vec4 c = u_csm_matrix[j] * vec4(q, 1.0);
     vec2 uv = c.xy;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    vec3 range = u_csm_range[j];
-    float span = range.y - range.x;
+    vec4 k = u_csm_depth[j];
     vec3 nl = mat3(u_csm_view[j]) * ng;
     Plane pl;
-    pl.ref = c.z - bias_world(texel, tan_l) / span - u_bias_steps * range.z;
-    pl.slope = clamp(nl.xy / max(nl.z, 1e-6), -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * u_csm_axes[j]
-        * (texel / span);
+    pl.ref = c.z - bias_world(k.z, tan_l) - k.w;
+    pl.slope = clamp(nl.xy / max(nl.z, 1e-6), -PLANE_SLOPE_MAX, PLANE_SLOPE_MAX) * k.xy;
     pl.persp = vec2(0.0);  // orthographic
     return shadow_layer(map, uv, layer, pl, size);
 }
