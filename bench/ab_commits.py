@@ -1,0 +1,268 @@
+"""The same renders by two versions of the code, interleaved render by render: what a change costs.
+
+Timings taken in two runs of a benchmark differ by more than most changes (these machines are
+noisy), so a change to the shaders or the passes is measured here against an earlier commit in
+one run: each version renders in a process of its own (its own GL context, its own package
+tree), and the two take turns, one render each, the order swapped every repeat. Both processes
+load the scenes through their own ``bench/_common.py`` and render them with their own defaults
+(``--params`` adds fields, e.g. ``'{"shadows": {"cascades": 3}}'``), so the rendering code is
+what differs. Per scene: the median camera-pass and light-pass times and wall time of each,
+their ratio, and how many pixels of the colour output differ (the pictures of a change meant to
+be invisible should not).
+
+The other version is ``git archive REV`` unpacked into a temporary folder and imported from there
+(``shadowmap`` laid out as the installed namespace is); the working tree is the current one.
+
+Writes ``bench/results/ab_commits.{md,csv}``.
+
+Run: ``PYTHONPATH=. .venv/bin/python bench/ab_commits.py REV [--scenes Duck,room_point]
+[--repeats N] [--params JSON]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import os
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from bench import _common as C
+
+#: Lines of the protocol on a child's stdout start with this (anything else it prints is passed
+#: on to our stderr).
+TAG = "@@ab "
+#: The child: renders on request, answers one tagged JSON line per request. It imports only what
+#: every version of ``bench/_common.py`` offers.
+CHILD = r'''
+import json, sys, time
+import numpy as np
+from bench import _common as C
+from shadowmap.renderer import Renderer
+
+TAG = "@@ab "
+r = Renderer()
+scenes, params = {}, {}
+extra = json.loads(sys.argv[1])
+
+def scene(name):
+    if name not in scenes:
+        bs = C.model_scene(name + ".glb") if name + ".glb" in C.MODEL_NAMES else (
+            C.model_scene(name + ".gltf") if name + ".gltf" in C.MODEL_NAMES
+            else C.stress_scene(name))
+        scenes[name] = bs.scene
+        params[name] = bs.params(**extra)
+    return scenes[name], params[name]
+
+def reply(obj):
+    sys.stdout.write(TAG + json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+reply({"ready": True, "info": dict(r.info)})
+for line in sys.stdin:
+    req = json.loads(line)
+    try:
+        s, p = scene(req["scene"])
+        if req["op"] == "render":
+            t = time.perf_counter()
+            res = r.render(s, p)
+            wall = time.perf_counter() - t
+            reply({"wall": wall, "timings": {k: float(v) for k, v in res.timings.items()}})
+        elif req["op"] == "image":
+            np.save(req["path"], r.render(s, p).color)
+            reply({"saved": req["path"]})
+    except Exception as exc:
+        reply({"error": f"{type(exc).__name__}: {exc}"})
+'''
+
+
+def unpack(rev: str, into: Path) -> str:
+    """Unpack ``git archive rev`` into ``into/tree`` and lay out ``into/pkg/shadowmap`` as the
+    installed namespace (``shadowmap.renderer`` is the tree's ``renderer/``, and so on); returns
+    the commit's short hash."""
+    commit = subprocess.run(["git", "rev-parse", "--short", rev], cwd=C.ROOT, check=True,
+                            capture_output=True, text=True).stdout.strip()
+    data = subprocess.run(["git", "archive", "--format=tar", commit], cwd=C.ROOT, check=True,
+                          capture_output=True).stdout
+    tree = into / "tree"
+    tree.mkdir(parents=True)
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+        tar.extractall(tree, filter="data")
+    pkg = into / "pkg" / "shadowmap"
+    pkg.mkdir(parents=True)
+    for entry in (tree / "shadowmap").iterdir():
+        (pkg / entry.name).symlink_to(entry)
+    for sub in ("renderer", "app", "shaders"):
+        (pkg / sub).symlink_to(tree / sub)
+    return commit
+
+
+class Version:
+    """One version's render process."""
+
+    def __init__(self, label: str, root: Path, pythonpath: list[Path], extra: dict) -> None:
+        self.label = label
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(str(p) for p in pythonpath))
+        env.setdefault("PYOPENGL_PLATFORM", "egl")
+        env["SHADOWMAP_MODELS"] = str(C.models_dir())  # the unpacked tree has no shared/ beside it
+        # Python puts the script's folder first on sys.path; ``-c`` puts the working folder
+        # there instead, which is the version's own root.
+        self.proc = subprocess.Popen([sys.executable, "-c", CHILD, json.dumps(extra)], cwd=root,
+                                     env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     text=True, bufsize=1)
+        self.info: dict[str, str] = self.read()["info"]
+
+    def read(self) -> dict[str, Any]:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            if line.startswith(TAG):
+                reply = json.loads(line[len(TAG):])
+                if "error" in reply:
+                    raise RuntimeError(f"{self.label}: {reply['error']}")
+                return reply
+            sys.stderr.write(line)
+        raise RuntimeError(f"the {self.label} process ended (exit status {self.proc.wait()})")
+
+    def ask(self, **req: Any) -> dict[str, Any]:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(json.dumps(req) + "\n")
+        self.proc.stdin.flush()
+        return self.read()
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()
+        self.proc.wait(timeout=30)
+
+
+def compare(a: Version, b: Version, scene: str, repeats: int, warmup: int = 3
+            ) -> dict[str, dict[str, list[float]]]:
+    """Render ``scene`` ``repeats`` times in each version, alternating (A B, B A, A B, ...)."""
+    for _ in range(warmup):
+        a.ask(op="render", scene=scene)
+        b.ask(op="render", scene=scene)
+    out: dict[str, dict[str, list[float]]] = {a.label: {}, b.label: {}}
+    for k in range(repeats):
+        for v in ((a, b) if k % 2 == 0 else (b, a)):
+            r = v.ask(op="render", scene=scene)
+            out[v.label].setdefault("wall", []).append(r["wall"])
+            for stage, sec in r["timings"].items():
+                out[v.label].setdefault(stage, []).append(sec)
+    return out
+
+
+def _pixels_differing(a: Version, b: Version, scene: str, folder: Path) -> int:
+    """Pixels of ``scene``'s colour output that differ between the versions (any channel; -1
+    when the images' shapes differ)."""
+    import numpy as np
+
+    paths = [folder / f"{scene}_{k}.npy" for k in range(2)]
+    a.ask(op="image", scene=scene, path=str(paths[0]))
+    b.ask(op="image", scene=scene, path=str(paths[1]))
+    ia, ib = (np.load(p).astype(np.int16) for p in paths)
+    return int((np.abs(ia - ib).max(axis=-1) > 0).sum()) if ia.shape == ib.shape else -1
+
+
+def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict) -> None:
+    t_start = time.perf_counter()
+    stages = ("camera", "light", "wall")
+    # per scene, version and stage: the median of each round
+    medians: dict[str, dict[str, dict[str, list[float]]]] = {}
+    differ: dict[str, int] = {}
+    info: dict[str, str] = {}
+    with tempfile.TemporaryDirectory(prefix="ab_commits_") as tmp:
+        root = Path(tmp)
+        commit = unpack(rev, root / "rev")
+        here = C.code_state()
+        bar = C.Progress(rounds * len(scenes), "ab_commits")
+        try:
+            for k in range(rounds):
+                # Fresh processes each round: a process's timings can settle at a few per cent
+                # (sometimes tens of per cent on one scene) from another's of the same code
+                # (where its buffers happen to lie), so one pair of processes is one sample.
+                base = Version(commit, root / "rev" / "tree",
+                               [root / "rev" / "pkg", root / "rev" / "tree"], extra)
+                work = Version("working tree", C.ROOT, [C.ROOT], extra)
+                info = work.info
+                try:
+                    for name in scenes:
+                        t = compare(base, work, name, repeats)
+                        for label, key in ((commit, "a"), ("working tree", "b")):
+                            for stage in stages:
+                                v = t[label].get(stage, [])
+                                medians.setdefault(name, {}).setdefault(key, {}).setdefault(
+                                    stage, []).append(1e3 * C.median(v) if v else math.nan)
+                        if k == 0:
+                            differ[name] = _pixels_differing(base, work, name, root)
+                        bar.step(f"round {k + 1}: {name}")
+                finally:
+                    base.close()
+                    work.close()
+        finally:
+            bar.close()
+    rows, csv_rows = [], []
+    for name in scenes:
+        m = medians[name]
+        cells = {f"{stage}_{key}": C.median(m[key][stage]) for key in "ab" for stage in stages}
+        # The ratio is taken within each round (the pair ran side by side, through the same
+        # spells of a busy machine), then the median over the rounds.
+        for stage in ("camera", "wall"):
+            cells[f"{stage}_ratio"] = C.median([b / a for a, b in zip(m["a"][stage], m["b"][stage],
+                                                                      strict=True)])
+        rows.append([name, *(C.fmt(cells[f"{st}_{v}"], 3) for st in stages for v in "ab"),
+                     *(C.fmt(cells[f"{st}_ratio"], 3) for st in ("camera", "wall")),
+                     str(differ[name])])
+        csv_rows.append({"scene": name, **{k: round(v, 4) for k, v in cells.items()},
+                         "pixels_differing": differ[name]})
+    machine = f"{info.get('platform')}, {info.get('renderer')}, GL {info.get('version')}"
+    load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+    headers = ["scene", f"camera ms, {commit}", "camera ms, working tree",
+               f"light ms, {commit}", "light ms, working tree", f"wall ms, {commit}",
+               "wall ms, working tree", "camera, working / base", "wall, working / base",
+               "pixels differing"]
+    ratios = [r["camera_ratio"] for r in csv_rows if r["camera_ratio"] > 0]
+    summary = (f"- Camera pass, working tree over {commit}: geometric mean "
+               f"{math.exp(sum(map(math.log, ratios)) / len(ratios)):.3f} over {len(ratios)} "
+               f"scenes; pixels differing in {sum(r['pixels_differing'] != 0 for r in csv_rows)}"
+               f" of them.") if ratios else "- No scene rendered."
+    md = "\n".join([
+        f"# The same renders by {commit} and by the working tree ({here})", "",
+        f"640x480, default settings{', with ' + json.dumps(extra) if extra else ''}; each version "
+        f"in a process of its own, one render each in turn (the order swapped every repeat), "
+        f"{repeats} repeats after 3 warm-ups; the median of each of {rounds} rounds, each with "
+        f"a fresh pair of processes, and the median of those; each ratio is taken within each "
+        f"round, then their median. Stages: the renderer's own timings "
+        f"(`RenderResult.timings`); the light pass is drawn once and cached, as a repeated "
+        f"request's is. Pixels differing: of the colour output, any channel.", "",
+        C.markdown_table(headers, rows), "", summary, "",
+        f"Machine: {machine}; {os.cpu_count()} CPU cores (load average {load} at the end); "
+        f"Python {sys.version.split()[0]}. Run time {time.perf_counter() - t_start:.0f} s.", ""])
+    out_dir = C.results_dir()
+    (out_dir / "ab_commits.md").write_text(md)
+    C.write_csv(out_dir / "ab_commits.csv", csv_rows)
+    print(md)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("rev", help="the commit to compare the working tree against")
+    ap.add_argument("--scenes", default=",".join(
+        [n.rsplit(".", 1)[0] for n in C.MODEL_NAMES] + list(C.STRESS_SCENES)),
+        help="comma-separated: model names without extension, stress scene names")
+    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--rounds", type=int, default=9, help="fresh process pairs, one after another")
+    ap.add_argument("--params", default="{}", help="RenderParams fields added to each scene's")
+    args = ap.parse_args()
+    run(args.rev, [s for s in args.scenes.split(",") if s], args.repeats, args.rounds,
+        json.loads(args.params))
+
+
+if __name__ == "__main__":
+    main()
