@@ -805,3 +805,15 @@ def test_far_bound_is_the_deepest_receiver_point_under_the_map(kind):
     assert want - 1e-7 * scale <= got <= want + 1e-7 * scale, (got, want)
     # Tighter than the deepest seen point anywhere, which a map's range ended at before.
     assert got < reach.far
+
+
+def test_an_ortho_depth_range_stays_open_at_any_magnitude():
+    from shadowmap.renderer.plan.fit import DEPTH_SLACK, ortho_depth_range
+
+    # The usual case: the slack is a share of the span.
+    assert ortho_depth_range(2.0, 12.0) == pytest.approx((2.0 - 10 * DEPTH_SLACK,
+                                                          12.0 + 10 * DEPTH_SLACK))
+    # Flat in depth, far out: the two ends no longer round to one number.
+    for d in (-3.17e16, 4.3e9, 1e-300, 0.0):
+        near, far = ortho_depth_range(d, d)
+        assert far > near and np.isfinite(2.0 / (far - near))

@@ -276,3 +276,33 @@ def test_coplanar_caster_and_receiver_has_no_acne(renderer):
                lights=[{"direction": [-0.5, -1, -0.2]}])
     assert m.false_shadow_pct <= 0.1, m
     assert m.iou >= 0.95, m
+
+
+@pytest.mark.parametrize("far_end", [1e4, 5e10])
+def test_a_caster_narrower_than_float32_resolves_where_it_lies_gets_a_warning(renderer, far_end):
+    """A unit box over the far end of a plane ``2 * far_end`` long: 1e4 units from the scene's
+    centre the box is 1e-4 of its distance and casts its shadow; 5e10 units out float32 holds
+    nothing finer than about 4e3 units there, so its map would be rounding noise (the depth
+    range once rounded to one number and the projection divided by zero, unsaid). The light
+    then shines unshadowed, with a warning, and nothing overflows on the way."""
+    import warnings as w
+
+    from shadowmap.renderer.scene import scene_from_meshes as meshes
+
+    plane = T._plane(1.0)
+    plane.vertices *= [2 * far_end, 1.0, 4.0]
+    scene = meshes([plane, T._box((1, 1, 1), (far_end - 1.0, 1.0, 0.0))], ["plane", "box"])
+    params = {"width": 160, "height": 120, "outputs": ["color", "visibility"],
+              "lights": [{"direction": [-0.2, -1.0, -0.1]}]}
+    if far_end < 1e6:  # near the box; the automatic camera frames the whole plane
+        params["camera"] = {"eye": [far_end + 2.0, 4.0, 5.0], "target": [far_end - 1, 0.5, 0]}
+    with w.catch_warnings():
+        w.simplefilter("error", RuntimeWarning)
+        result = renderer.render(scene, params)
+    light = result.plan["lights"][0]
+    if far_end < 1e6:
+        assert light["shadow_map"] == "ortho" and not result.warnings
+        assert (result.visibility[..., 0] < 0.5).mean() > 0.01  # the box's shadow
+    else:
+        assert light["shadow_map"] is None and light["skipped_pass"] == "below_precision"
+        assert any("narrower than the GPU's float32" in m for m in result.warnings)

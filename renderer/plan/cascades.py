@@ -30,7 +30,15 @@ import numpy as np
 
 from .context import AUTO_TEXEL_PIXELS, MIN_AUTO_MAP, PlanContext, Seen, _visible_receivers
 from .culling import select_casters, view_planes
-from .fit import DirectionalReach, Fit, Skip, Subject, fit_directional, reach_directional
+from .fit import (
+    DirectionalReach,
+    Fit,
+    Skip,
+    Subject,
+    fit_directional,
+    ortho_depth_range,
+    reach_directional,
+)
 from .geometry import aabbs_against_frustum, ortho
 
 if TYPE_CHECKING:
@@ -152,8 +160,7 @@ def _stable_fit(ctx: PlanContext, reach: DirectionalReach, fit_mask: np.ndarray,
     x1, y1 = x0 + 2 * radius, y0 + 2 * radius
     near = float(reach.depth_min[fit_mask].min())
     far = reach.far + texel * ctx.margin_texels
-    span = max(far - near, 1e-300)
-    near, far = near - span * 1e-3, far + span * 1e-3
+    near, far = ortho_depth_range(near, far)
     return Fit(kind="ortho", view=reach.view, proj=ortho(x0, x1, y0, y1, near, far), near=near,
                far=far, map_size=size, texel=(texel, 0.0))
 

@@ -48,6 +48,15 @@ if TYPE_CHECKING:  # the lights import this package's geometry: types only, no i
 # would spend most of its texels near the frustum's edges.
 MAX_SPOT_HALF_ANGLE = math.radians(60.0)
 
+#: Slack around an orthographic map's depth range, as a share of it (:func:`ortho_depth_range`).
+DEPTH_SLACK = 1e-3
+#: The narrowest window an orthographic map is fitted to, relative to its distance from the
+#: scene's centre: 8 steps of float32 (2**-20), the precision the GPU transforms the
+#: origin-relative positions with. Casters narrower than that for where they lie (a part a
+#: millionth of the scene's size at its far end) would be drawn into texels and depths that are
+#: rounding noise: such a light gets no pass (``"below_precision"``), with a warning.
+MIN_RELATIVE_EXTENT = 2.0**-20
+
 #: A 16-bit depth texture is used (``shadows.depth_bits: "auto"``) when one of its steps, a
 #: 65535th of the map's depth range, is at most this many of the map's texels nearest the light
 #: (the unit of the constant bias): the default quantisation bias of 1.5 steps then adds under a
@@ -218,6 +227,8 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
         return Skip("no_caster_in_frustum")
     near = _caster_near(ctx, reach, fit, (x0, x1, y0, y1))
     extent = max(x1 - x0, y1 - y0, 1e-300)
+    if extent < MIN_RELATIVE_EXTENT * max(abs(x0), abs(x1), abs(y0), abs(y1), abs(near)):
+        return Skip("below_precision")
     size = ctx.map_size_for(extent, s.receivers, toward=toward_light(s))
     pad = ctx.margin(extent, size)
     x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
@@ -227,11 +238,19 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
     # The deepest receiver point is the window's exact bound (no box beyond it any more):
     # filter taps read the margin past it in depth too.
     far += pad
-    # A little depth slack so that the nearest caster and farthest receiver are not clipped.
-    span = max(far - near, 1e-300)
-    near, far = near - span * 1e-3, far + span * 1e-3
+    near, far = ortho_depth_range(near, far)
     return Fit(kind="ortho", view=reach.view, proj=ortho(x0, x1, y0, y1, near, far), near=near,
                far=far, map_size=size, texel=(max(x1 - x0, y1 - y0) / size, 0.0))
+
+
+def ortho_depth_range(near: float, far: float) -> tuple[float, float]:
+    """An orthographic map's depth range: ``near`` and ``far`` moved apart by
+    :data:`DEPTH_SLACK` of their span, so that the nearest caster and the deepest receiver are
+    not clipped, and by at least 2**-40 of their magnitude, so that the two stay apart (a range
+    flat in depth far from the scene's centre would otherwise round to one number, and its
+    projection divide by zero)."""
+    slack = max((far - near) * DEPTH_SLACK, max(abs(near), abs(far)) * 2.0**-40, 1e-300)
+    return near - slack, far + slack
 
 
 def _caster_near(ctx: PlanContext, reach: DirectionalReach, fit: np.ndarray,

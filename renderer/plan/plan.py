@@ -58,8 +58,9 @@ class LightShadow:
         None: no light pass (see ``reason``); the light still shades, with visibility 1.
     reason : str or None
         Why there is no pass: "cast_shadows_false", "no_caster", "no_visible_receiver",
-        "no_caster_in_frustum" or "no_shadow_in_view" (no caster's shadow volume reaches a
-        visible pixel of a receiver).
+        "no_caster_in_frustum", "no_shadow_in_view" (no caster's shadow volume reaches a
+        visible pixel of a receiver) or "below_precision" (the casters are narrower than
+        float32 resolves at their distance from the origin; with a warning).
     view : ndarray, shape (4, 4)
         World (origin-relative) to light view (2D maps).
     proj : ndarray, shape (4, 4)
@@ -292,6 +293,7 @@ def make_plan(
             and int(ctx.receive[visible].sum()) <= MAX_SPLIT_RECEIVERS):
         planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
+    warnings += [_precision_warning(lp) for lp in planned if lp.reason == "below_precision"]
     return RenderPlan(
         camera=camera,
         origin=origin,
@@ -394,6 +396,14 @@ def _resolution_warning(lp: LightShadow, params: RenderParams) -> str:
     return (f"light {lp.index}: the {lp.light.type} light's map would need {want}x{want} "
             f"texels for its nearest visible receivers; max_map_size {lp.map_size} leaves "
             f"their shadows up to {lp.needed / lp.map_size:.1f}x coarser")
+
+
+def _precision_warning(lp: LightShadow) -> str:
+    """A directional light whose casters are too narrow for their distance from the scene's
+    centre to be fitted a map (:data:`~.fit.MIN_RELATIVE_EXTENT`)."""
+    return (f"light {lp.index}: no shadow: what casts it is narrower than the GPU's float32 "
+            "positions resolve that far from the scene's centre (under a millionth of its "
+            "distance), so its map would hold rounding noise; the light shines unshadowed")
 
 
 def _cascade(ctx: PlanContext, planned: list[LightShadow]) -> list[LightShadow]:
