@@ -16,6 +16,8 @@ Every failure is collected and reported together, with the case names.
 - Random mutations of the real models (``fuzz_mutations.py``, ``SHADOWMAP_FUZZ_MUTATIONS`` of
   them, default 600) through the library: refused or rendered, and a render during which numpy
   overflowed carries a warning.
+- Random rescalings and moves of real models and test scenes (``SHADOWMAP_FUZZ_SCALED``, default
+  400), under lights placed relative to them: the same oracle.
 """
 
 from __future__ import annotations
@@ -50,6 +52,8 @@ FUZZ_UPLOAD_BYTES = 8 * 2**20
 FUZZ_SEED = int(os.environ.get("SHADOWMAP_FUZZ_SEED", "12"))
 #: How many random mutations of the real models (``fuzz_mutations.py``) are loaded and rendered.
 MUTATIONS = int(os.environ.get("SHADOWMAP_FUZZ_MUTATIONS", "600"))
+#: How many random rescalings and moves of the test scenes are rendered.
+SCALED = int(os.environ.get("SHADOWMAP_FUZZ_SCALED", "400"))
 
 
 @pytest.fixture(scope="module")
@@ -393,3 +397,102 @@ def test_fuzz_server(cases, server, outside):
     print(f"{len(cases)} cases in {seconds:.1f} s: statuses {dict(sorted(statuses.items()))}")
     assert not failures, f"{len(failures)} of {len(cases)} cases:\n" + "\n".join(failures)
     assert not any(s >= 500 for s in statuses)
+
+
+@pytest.mark.gl
+def test_fuzz_scaled_scenes(renderer):
+    """Real models and test scenes scaled by 1e-7 to 1e9 and moved up to 1e13 units (some axes
+    left at 0), some with one part moved 10 to 1e17 scene sizes from the rest (a box alone far
+    out over the ground: small for its distance from the scene's centre), under a directional
+    light, or a spot or point light 0.3 to 10,000 scene sizes
+    away, with or without a ground, fitted to the view or the scene, cascaded or not: each is
+    refused with a ShadowMapError other than a RequestError (the request only places its light
+    where the scene is, inside the request's coordinate range; one the request model refuses is
+    skipped) or renders, and a render during
+    which numpy overflowed or met an invalid value carries a warning (a unit box 4.3e9 units
+    from a scene's centre had its map's depth range round to one number, unsaid)."""
+    import random
+
+    from shadowmap.renderer import testing as T
+    from shadowmap.renderer.params import MAX_COORDINATE
+    from shadowmap.renderer.scene import scene_from_meshes
+
+    rng = random.Random(FUZZ_SEED)
+    bases = {name: load_scene(models_dir() / name)
+             for name in ("Duck.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "TwoCubes.glb")}
+    bases.update(caster_on_ground=T.caster_on_ground(), room=T.room(), thin=T.thin_sheets(),
+                 box_on_plane=scene_from_meshes([T._plane(6.0), T._box((1, 1, 1), (0, 1, 0))],
+                                                ["plane", "box"]))
+    failures: list[str] = []
+    outcomes = {"ok": 0, "error": 0}
+    for k in range(SCALED):
+        name = rng.choice(sorted(bases))
+        scale = 10.0 ** rng.uniform(-7, 9)
+        offset = tuple(rng.choice([-1, 0, 1]) * 10.0 ** rng.uniform(-2, 13) for _ in range(3))
+        scene = T.transformed(bases[name], scale, offset)
+        if len(scene.instances) > 1 and rng.random() < 0.4:
+            # One part moved far from the rest: small for its distance from the scene's centre.
+            lo, hi = scene.bounds
+            away = rng.choice([-1, 1]) * float(np.linalg.norm(hi - lo)) * 10.0 ** rng.uniform(1, 17)
+            scene = _move_one(scene, rng.randrange(len(scene.instances)),
+                              np.array([away, 0.0, 0.0])[rng.sample(range(3), 3)])
+        lo, hi = scene.bounds
+        centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+        d = np.array([rng.uniform(-1, 1), rng.uniform(-1, -0.05), rng.uniform(-1, 1)])
+        d /= np.linalg.norm(d)
+        kind = rng.choice(["directional", "spot", "point"])
+        light: dict[str, Any] = {"type": kind, "direction": d.tolist()}
+        if kind != "directional":
+            position = centre - d * size * 10.0 ** rng.uniform(-0.5, 4)
+            if not np.all(np.abs(position) <= MAX_COORDINATE):
+                continue  # out of the request's range: its own refusal, tested elsewhere
+            light = {"type": kind, "position": position.tolist()}
+            if kind == "spot":
+                light.update(target=centre.tolist(), outer_cone_deg=rng.uniform(1.0, 89.0))
+        fit = rng.choice(["view", "scene"])
+        params = {**SMALL, "ground": rng.random() < 0.5, "lights": [light],
+                  "shadows": {"fit": fit, "cascades": rng.choice(["auto", 1, 3])
+                              if fit == "view" else "auto"}}
+        try:  # a light on top of its target where float64 has no room between: the request's
+            RenderParams.model_validate(params)
+        except ValueError:
+            continue
+        label = (f"#{k} {name} x{scale:.3g} +{tuple(f'{o:.3g}' for o in offset)}, {kind}, "
+                 f"{params['shadows']}, ground {params['ground']}")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RuntimeWarning)
+            try:
+                result = renderer.render(scene, params)
+            except RequestError as exc:
+                failures.append(f"{label}: a request error: {exc}")
+                continue
+            except ShadowMapError:
+                outcomes["error"] += 1
+                continue
+            except Exception as exc:  # noqa: BLE001 - what the test looks for
+                failures.append(f"{label}: crash: {type(exc).__name__}: {str(exc)[:200]}")
+                continue
+        outcomes["ok"] += 1
+        numeric = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+        if numeric and not result.warnings:
+            failures.append(f"{label}: rendered without a warning after numpy's {numeric[:3]}")
+    # Most render: the scales stay where float64 can place a camera on most of them.
+    assert outcomes["ok"] >= SCALED // 2, outcomes
+    assert not failures, f"{len(failures)} of {SCALED}:\n" + "\n".join(failures)
+
+
+def _move_one(scene: Any, index: int, offset: np.ndarray) -> Any:
+    """``scene`` with instance ``index`` translated by ``offset`` (float64 node matrices)."""
+    import dataclasses
+
+    from shadowmap.renderer.scene import Scene, world_bounds
+
+    inst = scene.instances[index]
+    matrix = inst.matrix.copy()
+    matrix[:3, 3] += offset
+    local = scene.primitives[inst.primitive].local_bounds.astype(np.float64)
+    moved = dataclasses.replace(inst, matrix=matrix, bounds=world_bounds(local, matrix))
+    instances = [moved if i == index else x for i, x in enumerate(scene.instances)]
+    return Scene(scene.primitives, instances, scene.cameras, scene.lights,
+                 key=f"{scene.key}:moved {index} {tuple(offset)!r}", focus=None,
+                 warnings=list(scene.warnings))
