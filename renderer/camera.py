@@ -18,8 +18,21 @@ import numpy as np
 from .errors import RequestError, SceneError
 from .params import CameraParams
 from .plan.geometry import look_at, perspective
-from .plan.instances import scene_box  # Scene.bounds, read once per scene
+from .plan.instances import scene_arrays, scene_box  # Scene.bounds, read once per scene
 from .scene import Scene
+
+#: The automatic near plane's distance, as a share of the far plane's, where no geometry is nearer
+#: (a camera inside the scene's bounding sphere).
+NEAR_SHARE = 1e-4
+#: The nearest the automatic near plane comes, as a share of the far plane's distance: geometry
+#: nearer than :data:`NEAR_SHARE` pulls the near plane in to it, down to this. The camera pass
+#: draws with reversed depth into a float depth buffer (``camera_pass.REVERSED_Z``), whose
+#: precision is relative at every distance, so a deep range costs no precision far away; past it
+#: the geometry nearer than the near plane is clipped, with a warning (:func:`near_clip_warning`).
+MIN_NEAR_SHARE = 1e-7
+#: Where the automatic near plane stands in front of the nearest geometry, as a share of its
+#: distance (its box's nearest point, not its surface).
+NEAR_MARGIN = 0.5
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -120,6 +133,77 @@ def orthonormalize_pose(matrix: np.ndarray, what: str) -> np.ndarray:
     return out
 
 
+def nearest_box_distances(scene: Scene, eye: np.ndarray) -> np.ndarray:
+    """Distance from ``eye`` to each instance's box (N,), float64: 0 for a box holding it."""
+    bounds = scene_arrays(scene).bounds  # (N, 2, 3)
+    gap = np.maximum(np.maximum(bounds[:, 0] - eye, eye - bounds[:, 1]), 0.0)
+    return np.sqrt((gap * gap).sum(axis=1))
+
+
+def _auto_near(scene: Scene, eye: np.ndarray, sphere_near: float, zfar: float) -> float:
+    """The automatic near plane: the scene's bounding sphere's near side, at least
+    :data:`NEAR_SHARE` of the far plane; nearer, in front of the nearest instance box that does
+    not hold the eye (down to :data:`MIN_NEAR_SHARE`), so that a camera close to a part of a
+    large scene still sees it."""
+    znear = max(sphere_near, zfar * NEAR_SHARE, 1e-30)
+    if sphere_near >= zfar * NEAR_SHARE:
+        return znear  # the eye outside the sphere: nothing lies nearer than its near side
+    d = nearest_box_distances(scene, eye)
+    d = d[d > 0.0]  # a box around the eye (a room) says nothing of where its surfaces lie
+    if len(d) and float(d.min()) < znear:
+        znear = max(sphere_near, float(d.min()) * NEAR_MARGIN, zfar * MIN_NEAR_SHARE, 1e-30)
+    return znear
+
+
+def near_clip_warning(camera: Camera, scene: Scene, params: CameraParams | None) -> str:
+    """A warning when the automatic near plane clips geometry in front of the camera: an
+    instance box (not one around the eye) that lies wholly nearer than it, ahead of the eye.
+    Empty when the request gave ``znear``."""
+    if params is not None and params.znear is not None:
+        return ""
+    eye = camera.position
+    d = nearest_box_distances(scene, eye)
+    bounds = scene_arrays(scene).bounds
+    centre = (bounds[:, 0] + bounds[:, 1]) / 2
+    ahead = (centre - eye) @ -camera.pose[:3, 2] > 0.0
+    clipped = (d > 0.0) & (d < camera.znear) & ahead
+    if not clipped.any():
+        return ""
+    return (f"camera: the automatic near plane at {camera.znear:.3g} units (it comes no nearer "
+            f"than {MIN_NEAR_SHARE:g} of the far plane, at {camera.zfar:.3g}) clips "
+            f"{int(clipped.sum())} instance(s) wholly nearer than it (the nearest "
+            f"{float(d[clipped].min()):.3g} units away): the scene is too deep from this camera "
+            "for one depth range; give camera.znear and camera.zfar")
+
+
+#: Positions the GPU gets are float32, relative to the scene's centre: at distance M from it they
+#: step by about M * 2**-23, and a view transform of such a position errs by a few steps. A view
+#: whose nearest pixels are finer than 4 such steps (2**-21 of M) shows them.
+VIEW_PRECISION = 2.0**-21
+
+
+def precision_warning(camera: Camera, scene: Scene, origin: np.ndarray) -> str:
+    """A warning when the camera looks so closely at geometry so far from the scene's centre
+    (``origin``, where the upload is placed) that a pixel there is finer than float32 places
+    positions: jagged edges and noisy shading. The nearest geometry is the nearest instance box
+    ahead of the eye (not one around it), at least the near plane away."""
+    eye = camera.position
+    d = nearest_box_distances(scene, eye)
+    bounds = scene_arrays(scene).bounds
+    centre = (bounds[:, 0] + bounds[:, 1]) / 2
+    ahead = ((centre - eye) @ -camera.pose[:3, 2] > 0.0) & (d > 0.0)
+    near = max(float(d[ahead].min()) if ahead.any() else camera.znear, camera.znear)
+    pixel = near * 2.0 * math.tan(camera.yfov / 2) / camera.height
+    far_out = float(np.linalg.norm(eye - origin)) + near
+    if pixel >= far_out * VIEW_PRECISION:
+        return ""
+    return (f"camera: the nearest geometry in view ({near:.3g} units away, {pixel:.3g} units a "
+            f"pixel there) lies about {far_out:.3g} units from the scene's centre, where the "
+            f"GPU's float32 positions step by about {far_out * 2.0**-23:.3g} units: edges and "
+            "shading there show those steps; view it from further away, or render that part as "
+            "a scene of its own")
+
+
 def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height: int) -> Camera:
     """Resolve the request's camera against a scene.
 
@@ -164,7 +248,7 @@ def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height
         # A near plane beyond the scene: the fitted far plane follows it (nothing is drawn,
         # which is what such a camera sees).
         zfar = params.znear * 2.0
-    znear = params.znear or max(dist_c - radius, zfar * 1e-4, 1e-30)
+    znear = params.znear or _auto_near(scene, pose[:3, 3], dist_c - radius, zfar)
     if params.znear is None and znear >= zfar:
         # A far plane before the scene: likewise.
         znear = zfar * 1e-4

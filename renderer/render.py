@@ -24,7 +24,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .cache import BoundedCache, content_key, parts_key
-from .camera import Camera, orthonormalize_pose, resolve_camera
+from .camera import (
+    Camera,
+    near_clip_warning,
+    orthonormalize_pose,
+    precision_warning,
+    resolve_camera,
+)
 from .encodings import debug_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
 from .ground import existing_floor
@@ -476,6 +482,9 @@ class Renderer:
         check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
         t = time.perf_counter()
         camera = resolve_camera(params.camera, scene, params.width, params.height)
+        clipped = near_clip_warning(camera, scene, params.camera)
+        if clipped:
+            warnings.append(clipped)
         lights = resolve_lights(params.lights, scene)
         check_lights(len(lights), self.limits)
         # Again with the file's camera and lights, and the resolved positions. The upload is
@@ -484,6 +493,9 @@ class Renderer:
         origin = (lo + hi) / 2
         check_gpu_range(scene.bounds, origin, [camera.position] + [
             lt.position for lt in lights if lt.type != "directional"], scene_placed=True)
+        coarse = precision_warning(camera, scene, origin)
+        if coarse:
+            warnings.append(coarse)
         key = (plan_key(scene, camera, lights, origin, params, params_json)
                if self.plans.enabled else "")
         return _Prepared(scene, params, warnings, camera, lights, origin, key,

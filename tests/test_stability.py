@@ -306,3 +306,44 @@ def test_a_caster_narrower_than_float32_resolves_where_it_lies_gets_a_warning(re
     else:
         assert light["shadow_map"] is None and light["skipped_pass"] == "below_precision"
         assert any("narrower than the GPU's float32" in m for m in result.warnings)
+
+
+def _box_at_the_far_end(far_end: float):
+    """A unit box over the far end of a plane ``2 * far_end`` long, and a camera 5 units from it
+    (the scene's centre ``far_end`` away)."""
+    from shadowmap.renderer.scene import scene_from_meshes as meshes
+
+    plane = T._plane(1.0)
+    plane.vertices *= [2 * far_end, 1.0, 4.0]
+    scene = meshes([plane, T._box((1, 1, 1), (far_end - 1.0, 1.0, 0.0))], ["plane", "box"])
+    camera = {"eye": [far_end + 2.0, 4.0, 5.0], "target": [far_end - 1.0, 0.5, 0.0]}
+    return scene, camera
+
+
+def test_a_camera_close_to_a_part_of_a_large_scene_sees_it(renderer):
+    """The automatic near plane followed the scene's bounding sphere, at least 1e-4 of the far
+    plane: 8 units here, and the box 5 units from the camera was clipped away, unsaid. It now
+    comes in front of the nearest box (the depth buffer is reversed float: deep ranges cost no
+    precision)."""
+    scene, camera = _box_at_the_far_end(4e4)
+    result = renderer.render(scene, {"width": 160, "height": 120, "camera": camera,
+                                     "outputs": ["color", "depth"],
+                                     "lights": [{"direction": [-0.2, -1.0, -0.1]}]})
+    assert result.warnings == []
+    assert np.nanmin(result.depth) < 6.0  # the box's nearest face, drawn
+    assert result.plan["camera"]["znear"] < 5.0
+
+
+@pytest.mark.parametrize(("far_end", "says"), [
+    (1e6, "float32 positions step by about 0.119 units"),
+    (1e9, "the automatic near plane at 202 units"),
+])
+def test_what_a_close_camera_in_a_vast_scene_cannot_show_is_said(renderer, far_end, says):
+    """1e6 units from the scene's centre float32 steps by 0.12 units, coarser than the view's
+    pixels at the box: the picture shows the steps, and says so. 1e9 units out the depth range
+    from the camera to the far end is 4e8 times the box's distance, past what the near plane
+    follows (1e-7 of the far plane): the box is clipped, and that is said too."""
+    scene, camera = _box_at_the_far_end(far_end)
+    result = renderer.render(scene, {"width": 160, "height": 120, "camera": camera,
+                                     "lights": [{"direction": [-0.2, -1.0, -0.1]}]})
+    assert any(says in w for w in result.warnings), result.warnings
