@@ -347,3 +347,30 @@ def test_what_a_close_camera_in_a_vast_scene_cannot_show_is_said(renderer, far_e
     result = renderer.render(scene, {"width": 160, "height": 120, "camera": camera,
                                      "lights": [{"direction": [-0.2, -1.0, -0.1]}]})
     assert any(says in w for w in result.warnings), result.warnings
+
+
+@pytest.mark.parametrize("kind", ["spot", "point"])
+def test_a_caster_almost_touching_a_spot_or_point_light_casts(renderer, kind):
+    """A 4e-6 box 1e-5 below a light 2 units over the ground: its shadow is a wide disc. The
+    map's near plane stopped at 1e-5 of its far plane (2e-5 units here) and clipped the box,
+    unsaid (IoU 0). It now follows the casters down to 2**-22 of the far plane (maps store
+    linear depth); a box nearer than that is clipped with a warning."""
+    import trimesh
+
+    from shadowmap.renderer.scene import scene_from_meshes
+
+    def scene(gap: float, size: float):
+        tiny = trimesh.creation.box(extents=(size,) * 3)
+        tiny.apply_translation((0, 2.0 - gap - size / 2, 0))
+        ground = trimesh.creation.box(extents=(6, 0.01, 6))
+        return scene_from_meshes([ground, tiny])
+
+    light = {"type": kind, "position": [0, 2, 0]}
+    if kind == "spot":
+        light.update(direction=[0, -1, 0], outer_cone_deg=30)
+    m, result = iou(renderer, scene(1e-5, 4e-6), camera=CAMERA, lights=[light])
+    assert m.iou >= 0.9, m
+    assert result.warnings == []
+    clipped = renderer.render(scene(1e-7, 4e-8), {"camera": CAMERA, "lights": [light],
+                                                  "width": 64, "height": 48})
+    assert any("begin nearer to the" in w for w in clipped.warnings), clipped.warnings

@@ -57,6 +57,13 @@ DEPTH_SLACK = 1e-3
 #: rounding noise: such a light gets no pass (``"below_precision"``), with a warning.
 MIN_RELATIVE_EXTENT = 2.0**-20
 
+#: The nearest a perspective or cube map's near plane comes to the light, as a share of its far
+#: plane: its casters' nearest points set it, down to this. The maps store linear depth, so a
+#: deep range costs no depth precision; this floor is about where float32 light-view depths of
+#: positions that far away stop resolving the distance to the light (2**-22). A caster wholly
+#: nearer the light than that is clipped from the map, with a warning.
+MIN_MAP_NEAR_SHARE = 2.0**-22
+
 #: A 16-bit depth texture is used (``shadows.depth_bits: "auto"``) when one of its steps, a
 #: 65535th of the map's depth range, is at most this many of the map's texels nearest the light
 #: (the unit of the constant bias): the default quantisation bias of 1.5 steps then adds under a
@@ -136,6 +143,7 @@ class Fit:
     faces: list[int] = field(default_factory=list)
     face_views: list[np.ndarray] = field(default_factory=list)
     needed: float = 0.0  # texels per side 'auto' would want, before max_map_size
+    near_clipped: int = 0  # casters wholly ahead of the light but nearer than ``near``
 
 
 def depth16_is_enough(near: float, far: float, texel: tuple[float, float]) -> bool:
@@ -390,7 +398,7 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
         if np.any(a_hi <= a_lo):
             return Skip("no_caster_in_frustum")
     caster_near = float(reach.depth_min[fit].min() * 0.999)
-    near = max(caster_near, reach.far * 1.001e-5)
+    near = max(caster_near, reach.far * 1.001 * MIN_MAP_NEAR_SHARE)
     extent = float(max(a_hi[0] - a_lo[0], a_hi[1] - a_lo[1]))
     # Slopes become world sizes at a typical receiver's light depth.
     d_light = float(np.median(reach.depth[s.receivers].mean(axis=1).clip(min=near)))
@@ -398,7 +406,7 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     pad = ctx.margin(extent, size)
     a_lo, a_hi = a_lo - pad, a_hi + pad
     far = min(reach.far, _pyramid_far(ctx, reach, s.receivers, a_lo, a_hi, near)) * 1.001
-    near = max(caster_near, far * 1e-5)
+    near = max(caster_near, far * MIN_MAP_NEAR_SHARE)
     proj = frustum(a_lo[0] * near, a_hi[0] * near, a_lo[1] * near, a_hi[1] * near, near, far)
     # What the most demanding seen receiver point wants: one texel spans extent / size * its
     # light depth and a pixel pixel_per_distance * its camera distance, and receivers over
@@ -411,7 +419,8 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     # (at one camera pixel per texel: the half pixel 'auto' aims at is a target, not a need)
     needed = extent * ratio / (ctx.pixel_per_distance / AUTO_TEXEL_PIXELS)
     return Fit(kind="perspective", view=reach.view, proj=proj, near=near, far=far, map_size=size,
-               texel=(0.0, float(max(a_hi - a_lo)) / size), needed=needed)
+               texel=(0.0, float(max(a_hi - a_lo)) / size), needed=needed,
+               near_clipped=_near_clipped(reach.depth_min[fit], near))
 
 
 def _pyramid_far(ctx: PlanContext, reach: SpotReach, receivers: np.ndarray, a_lo: np.ndarray,
@@ -524,16 +533,25 @@ def reach_cube(ctx: PlanContext, s: Subject) -> CubeReach | Skip:
                      face_views=face_views, faces=faces, cheb=cheb)
 
 
+def _near_clipped(depth_min: np.ndarray, near: float) -> int:
+    """How many casters (their boxes' nearest depth from the light, ``depth_min``) lie wholly
+    ahead of the light yet begin nearer than the map's near plane: what the floor
+    :data:`MIN_MAP_NEAR_SHARE` clips. A box around the light (depth 0) is not counted: its
+    surfaces may lie anywhere in it."""
+    return int(np.count_nonzero((depth_min > 0.0) & (depth_min * 0.999 < near * (1 - 1e-12))))
+
+
 def fit_cube(ctx: PlanContext, s: Subject, reach: CubeReach, fit: np.ndarray) -> Fit:
     """Six 90-degree faces from the nearest caster to the farthest receiver (Chebyshev depth,
     the depth along the face axis)."""
     far = reach.far
-    near = float(max(reach.depth_min[fit].min() * 0.999, far * 1e-5))
+    near = float(max(reach.depth_min[fit].min() * 0.999, far * MIN_MAP_NEAR_SHARE))
     d_light = float(np.median(reach.cheb[s.receivers].mean(axis=1).clip(min=near)))
     # A face spans two units at unit depth.
     size = ctx.map_size_for(2 * d_light, s.receivers, cube=True, toward=toward_light(s))
     return Fit(kind="cube", view=np.eye(4), proj=perspective(math.pi / 2, 1.0, near, far),
                near=near, far=far, map_size=size, texel=(0.0, 2.0 / size), faces=list(reach.faces),
+               near_clipped=_near_clipped(reach.depth_min[fit], near),
                face_views=list(reach.face_views))
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from .cascades import CascadeFit, plan_cascades
 from .context import PlanContext, Toward
 from .culling import select_casters
-from .fit import Fit, Skip, Subject, choose_method, depth16_is_enough
+from .fit import MIN_MAP_NEAR_SHARE, Fit, Skip, Subject, choose_method, depth16_is_enough
 from .instances import _frozen
 from .shadow_region import (
     MAX_SPLIT_RECEIVERS,
@@ -92,6 +92,10 @@ class LightShadow:
         Camera pixels one texel of this cascade covers at its near end (0: not a cascade).
     needed : float
         Spot maps: the texels per side its most demanding seen receiver wants (0: not known).
+    near_clipped : int
+        Perspective and cube maps: casters wholly ahead of the light that begin nearer than the
+        map's near plane (:data:`~.fit.MIN_MAP_NEAR_SHARE` of its far plane), clipped from it;
+        the plan warns of them.
     depth_bits : int
         Bits of the light's depth texture (every cascade's: one array texture) with the
         ``depth`` encoding, 16 or 32 (:func:`depth_bits`); 0 for the byte encodings and without
@@ -123,6 +127,7 @@ class LightShadow:
     blend: float = 0.0
     texel_pixels: float = 0.0
     needed: float = 0.0
+    near_clipped: int = 0
     depth_bits: int = 0
     one_sided: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
 
@@ -152,7 +157,7 @@ class LightShadow:
         return cls(index=index, light=light, position=position, kind=fit.kind, view=fit.view,
                    proj=fit.proj, near=fit.near, far=fit.far, map_size=fit.map_size,
                    texel=fit.texel, casters=casters, faces=fit.faces, face_views=fit.face_views,
-                   skipped=skipped, needed=fit.needed)
+                   skipped=skipped, needed=fit.needed, near_clipped=fit.near_clipped)
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"type": self.light.type, "shadow_map": self.kind}
@@ -294,6 +299,7 @@ def make_plan(
         planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     warnings += [_precision_warning(lp) for lp in planned if lp.reason == "below_precision"]
+    warnings += [_near_warning(lp) for lp in planned if lp.near_clipped]
     return RenderPlan(
         camera=camera,
         origin=origin,
@@ -404,6 +410,14 @@ def _precision_warning(lp: LightShadow) -> str:
     return (f"light {lp.index}: no shadow: what casts it is narrower than the GPU's float32 "
             "positions resolve that far from the scene's centre (under a millionth of its "
             "distance), so its map would hold rounding noise; the light shines unshadowed")
+
+
+def _near_warning(lp: LightShadow) -> str:
+    """A spot or point light with casters nearer to it than its map's near plane comes
+    (:data:`~.fit.MIN_MAP_NEAR_SHARE` of its far plane)."""
+    return (f"light {lp.index}: {lp.near_clipped} caster(s) begin nearer to the {lp.light.type} "
+            f"light than its map's near plane ({lp.near:.3g} units, {MIN_MAP_NEAR_SHARE:.2g} of "
+            f"its far plane at {lp.far:.3g}): what lies nearer casts no shadow")
 
 
 def _cascade(ctx: PlanContext, planned: list[LightShadow]) -> list[LightShadow]:
