@@ -13,7 +13,8 @@ be invisible should not).
 The other version is ``git archive REV`` unpacked into a temporary folder and imported from there
 (``shadowmap`` laid out as the installed namespace is); the working tree is the current one.
 
-Writes ``bench/results/ab_commits.{md,csv}``.
+Writes ``bench/results/ab_commits_<REV's short hash>.{md,csv}``: one pair of files per base
+commit, so that a comparison a note quotes is not replaced by the next one.
 
 Run: ``PYTHONPATH=. .venv/bin/python bench/ab_commits.py REV [--scenes Duck,room_point]
 [--repeats N] [--params JSON]``
@@ -245,8 +246,8 @@ def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict) -> 
         f"Machine: {machine}; {os.cpu_count()} CPU cores (load average {load} at the end); "
         f"Python {sys.version.split()[0]}. Run time {time.perf_counter() - t_start:.0f} s.", ""])
     out_dir = C.results_dir()
-    (out_dir / "ab_commits.md").write_text(md)
-    C.write_csv(out_dir / "ab_commits.csv", csv_rows)
+    (out_dir / f"ab_commits_{commit}.md").write_text(md)
+    C.write_csv(out_dir / f"ab_commits_{commit}.csv", csv_rows)
     print(md)
 
 

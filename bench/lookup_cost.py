@@ -51,7 +51,7 @@ QUICK_SIZES = (256, 2048)
 ANCHOR = "    vec4 range = u_map2d_range[m];\n"
 _DEPTH = """
     vec2 uv_ = persp ? c.xy / c.w : c.xy;
-    float t_ = (persp ? (c.w - range.x) * u_map2d_depth[m].z : c.z) - u_map2d_depth[m].y;
+    float t_ = c.z - u_map2d_depth[m].y;
 """
 #: The cut-down lookups, by arm: GLSL returned right after :data:`ANCHOR` (``range``, ``c`` and
 #: ``persp`` are the function's own).

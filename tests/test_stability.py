@@ -30,9 +30,12 @@ def scene():
 # -- light far away ------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("distance", [40.0, 100 * 6.0, 1000 * 6.0])
+@pytest.mark.parametrize("distance", [40.0, 100 * 6.0, 1000 * 6.0, 1e5, 1e7, 5e10])
 def test_far_spot_light(renderer, scene, distance):
-    # The WebGL guide's LIGHT_Y = 40, then 100x and 1000x the scene's size (6 units).
+    """The WebGL guide's LIGHT_Y = 40, then 100x and 1000x the scene's size (6 units), then up
+    to 5e10 units, the cone always just holding the scene. From 1e5 out the cone (3e-3 degrees
+    there) lit nothing: its cos rounded to 1 in float32. The falloff is now taken in 1 - cos
+    from the angle off the axis, measured from a point of the axis near the scene."""
     direction = np.array([0.3, -1.0, 0.2]) / np.linalg.norm([0.3, -1.0, 0.2])
     position = -direction * distance
     cone = math.degrees(math.atan(5.0 / distance)) * 1.2
@@ -40,6 +43,23 @@ def test_far_spot_light(renderer, scene, distance):
         {"type": "spot", "position": position.tolist(), "target": [0, 0, 0],
          "outer_cone_deg": cone}])
     assert result.plan["lights"][0]["shadow_map"] == "perspective"
+    assert m.iou >= 0.95, m
+
+
+@pytest.mark.parametrize("distance", [1e3, 1e5, 1e7, 1e9, 5e10])
+def test_far_point_light(renderer, scene, distance):
+    """A point light far from the scene gets a frustum around its casters. Its depths were
+    read as w - near from w, the distance along its axis, which float32 keeps to 0.008 units
+    at 1e5 (IoU 0.53 there, 0.34 at 1e7); and its near and far planes stood a thousandth of
+    the distance beyond the scene's depth, 5e7 units at 5e10 (IoU 0.03). Both are gone: the
+    stored depth is an affine function of the position with its constant worked out in
+    float64, and the planes stand a thousandth of the scene's depth range out."""
+    direction = np.array([0.3, -1.0, 0.2]) / np.linalg.norm([0.3, -1.0, 0.2])
+    m, result = iou(renderer, scene, camera=CAMERA, lights=[
+        {"type": "point", "position": (-direction * distance).tolist()}])
+    lp = result.plan["lights"][0]
+    assert lp["shadow_map"] == "perspective"
+    assert lp["far"] - lp["near"] < 20.0  # the scene's depth and a little, at any distance
     assert m.iou >= 0.95, m
 
 

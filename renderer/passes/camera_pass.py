@@ -387,8 +387,37 @@ def _texel_axes(proj: np.ndarray) -> tuple[float, float]:
     return (m / x, m / y)
 
 
+def spot_axis(position: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, float]:
+    """A spot's axis for ``shaders/chunks/lighting.glsl``, origin-relative: its point nearest
+    the origin (the scene's centre), shape (3,), and the light's distance to that point along
+    the axis (negative where the light is past it), in float64."""
+    axis = np.asarray(direction, np.float64)
+    offset = float(-np.dot(position, axis))
+    return np.asarray(position, np.float64) + axis * offset, offset
+
+
+def map2d_matrix(plan: LightShadow) -> np.ndarray:
+    """World (origin-relative) to a 2D map's lookup coordinates, shape (4, 4), float64:
+    ``BIAS @ proj @ view``, whose x, y over w are the map point and, for an orthographic map, z
+    the stored depth t = (depth - near) / (far - near).
+
+    A perspective map's z row is replaced by its stored depth too, an affine function of the
+    position whose constant is worked out here in float64: the shader used to take
+    ``(w - near) / span`` from w, the distance along the light's axis, and where the light is
+    far from the scene (1e5 units, its receivers within a few units of that) float32 kept
+    nothing of the difference (see light_pass.near_origin).
+    """
+    m = BIAS @ plan.proj @ plan.view
+    if plan.kind == "perspective":
+        span = _span(plan.near, plan.far)
+        row = -plan.view[2].copy()  # w, the depth along the axis
+        row[3] -= plan.near
+        m[2] = row / span
+    return m
+
+
 def map2d_plane_factors(plan: LightShadow, step: float, quantisation_steps: float
-                 ) -> tuple[tuple[float, float, float, float], tuple[float, float, float, float]]:
+                 ) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
     """The receiver plane's per-map factors of ``shaders/chunks/shadow_2d.glsl``
     (``u_map2d_plane``, ``u_map2d_depth``): quotients of the map's size, depth range, texel and
     axes, divided once here instead of on every pixel.
@@ -401,7 +430,7 @@ def map2d_plane_factors(plan: LightShadow, step: float, quantisation_steps: floa
       (orthographic), ``1 / (texel_w size a)`` (perspective; the shader scales it by
       ``w / (w - (a, b) . uv)``);
     - plane ``zw``: the stored depth's change per texel per unit of tangent, ``a texel / span``;
-    - depth: ``(texel / span, quantisation_steps * step, 1 / span, span)``.
+    - depth: ``(texel / span, quantisation_steps * step, span)``.
     """
     span = _span(plan.near, plan.far)
     size = float(plan.map_size)
@@ -414,7 +443,7 @@ def map2d_plane_factors(plan: LightShadow, step: float, quantisation_steps: floa
     else:
         tan = (span / (texel * size * ax), span / (texel * size * ay))
     plane = (*tan, ax * texel / span, ay * texel / span)
-    depth = (texel / span, quantisation_steps * step, 1.0 / span, span)
+    depth = (texel / span, quantisation_steps * step, span)
     return plane, depth
 
 
@@ -583,8 +612,14 @@ class _FrameState:
                 out.append(("u_light_position", [lp.light.position - origin for lp in lights]))
                 out.append(("u_light_range", [lp.light.range or 0.0 for lp in lights]))
             if self.has_spot:
-                out.append(("u_light_cone", [(np.cos(lp.light.outer_cone),
-                                              np.cos(lp.light.inner_cone)) for lp in lights]))
+                # 1 - cos as 2 sin^2(a / 2): exact where cos would round to 1 (lighting.glsl)
+                out.append(("u_light_cone", [(2 * np.sin(lp.light.outer_cone / 2) ** 2,
+                                              2 * np.sin(lp.light.inner_cone / 2) ** 2)
+                                             for lp in lights]))
+                axes = [spot_axis(lp.light.position - origin, lp.light.direction)
+                        for lp in lights]
+                out.append(("u_light_axis_point", [a for a, _ in axes]))
+                out.append(("u_light_axis_offset", [o for _, o in axes]))
         if self.maps:
             b = p.shadows.bias
             out.append(("u_bias", (b.constant, b.slope, b.slope_max, b.normal_offset)))
@@ -596,7 +631,7 @@ class _FrameState:
                                               b.normal_offset > 0)
             if two_d:
                 out.append(("u_map2d", [units[self.maps.index(m)] for m in two_d]))
-                out.append(("u_map2d_matrix", [BIAS @ m.plan.proj @ m.plan.view for m in two_d]))
+                out.append(("u_map2d_matrix", [map2d_matrix(m.plan) for m in two_d]))
                 out.append(("u_map2d_range", [(m.plan.near, m.plan.far, m.step, m.plan.map_size)
                                               for m in two_d]))
                 if b.normal_offset > 0:

@@ -109,6 +109,33 @@ def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: Shadow
     return parts_key(parts)
 
 
+def near_origin(lp: LightShadow, view: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """The view, projection and depth range a map's casters are drawn with: for a perspective
+    map the light's view moved along its axis to the near plane, and the projection moved back
+    (their product unchanged, composed in float64).
+
+    The view depth of a caster then is its distance past the near plane, small where the light
+    is far from the scene (a point light 1e5 units out, its casters between 1e5 and 1e5 + 6): in
+    float32 a depth of 1e5 steps by 0.008, a hundred steps of a 16-bit map over a span of 6,
+    and the stored depth (w - near) / span was rounding noise. Orthographic and cube maps keep
+    theirs (their views are centred on the scene or the light's position nearby).
+
+    Returns
+    -------
+    view, proj : ndarray, shape (4, 4), float64
+    depth_range : (float, float)
+        The near and far depths in that view (the stored depth is linear between them).
+    """
+    if lp.kind != "perspective":
+        return view, lp.proj, (lp.near, lp.far)
+    move = np.eye(4)
+    move[2, 3] = lp.near  # view-space z + near: -z is the depth past the near plane
+    back = np.eye(4)
+    back[2, 3] = -lp.near
+    return move @ view, lp.proj @ back, (0.0, lp.far - lp.near)
+
+
 class LightPass:
     """Renders shadow maps; owns a pool of framebuffers keyed by (kind, size, encoding, layers,
     depth bits)
@@ -290,6 +317,7 @@ class LightPass:
         one step of the map's stored depth (:attr:`ShadowMap.step`), the polygon offset's
         unit."""
         perspective = lp.kind != "ortho"
+        shifted = near_origin(lp, view)
         po_factor, po_units = shadows.bias.polygon_offset
         polygon_offset = bool(po_factor or po_units)
         culled = 0
@@ -319,11 +347,11 @@ class LightPass:
             self.variants.add(tuple(sorted(defines.items())))
             prog = self.programs.get("light_pass.vert", "light_pass.frag", defines)
             prog.use()
-            prog.set("u_light_view", view)
-            prog.set("u_light_proj", lp.proj)
+            prog.set("u_light_view", shifted[0])
+            prog.set("u_light_proj", shifted[1])
             if shadows.encoding != "depth" or defines["WRITE_DEPTH"]:
                 # (an orthographic depth-texture map stores the window depth as it is)
-                prog.set("u_depth_range", (lp.near, lp.far))
+                prog.set("u_depth_range", shifted[2])
             if polygon_offset:
                 prog.set("u_polygon_offset", (po_factor, po_units * step))
             if texture is not None and cutoff is not None:

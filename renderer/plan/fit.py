@@ -405,8 +405,8 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     size = ctx.map_size_for(extent * d_light, s.receivers, toward=toward_light(s))
     pad = ctx.margin(extent, size)
     a_lo, a_hi = a_lo - pad, a_hi + pad
-    far = min(reach.far, _pyramid_far(ctx, reach, s.receivers, a_lo, a_hi, near)) * 1.001
-    near = max(caster_near, far * MIN_MAP_NEAR_SHARE)
+    far0 = min(reach.far, _pyramid_far(ctx, reach, s.receivers, a_lo, a_hi, near))
+    near, far = _map_depth_range(float(reach.depth_min[fit].min()), far0)
     proj = frustum(a_lo[0] * near, a_hi[0] * near, a_lo[1] * near, a_hi[1] * near, near, far)
     # What the most demanding seen receiver point wants: one texel spans extent / size * its
     # light depth and a pixel pixel_per_distance * its camera distance, and receivers over
@@ -533,19 +533,35 @@ def reach_cube(ctx: PlanContext, s: Subject) -> CubeReach | Skip:
                      face_views=face_views, faces=faces, cheb=cheb)
 
 
+def _map_depth_range(caster_near: float, receiver_far: float) -> tuple[float, float]:
+    """A perspective or cube map's near and far planes around its nearest caster and deepest
+    receiver: each moved out by a thousandth of the range between them, or nearer by a
+    thousandth of the caster's distance where that is less (a caster close to the light), the
+    near plane no nearer than :data:`MIN_MAP_NEAR_SHARE` of the far one.
+
+    The margin is a share of the depth range, not of the distance: a light 5e10 units from a
+    scene 6 units deep moved its near plane 5e7 units in front of the casters at 0.999 of their
+    distance, and the map's depth range, 5e7 units, left float32 a step of 3 units for a scene 6
+    deep (IoU 0 against the reference).
+    """
+    margin = 1e-3 * max(receiver_far - caster_near, 0.0)
+    far = receiver_far + margin
+    near = caster_near - min(margin, 1e-3 * caster_near)
+    return max(near, far * MIN_MAP_NEAR_SHARE), far
+
+
 def _near_clipped(depth_min: np.ndarray, near: float) -> int:
     """How many casters (their boxes' nearest depth from the light, ``depth_min``) lie wholly
     ahead of the light yet begin nearer than the map's near plane: what the floor
     :data:`MIN_MAP_NEAR_SHARE` clips. A box around the light (depth 0) is not counted: its
     surfaces may lie anywhere in it."""
-    return int(np.count_nonzero((depth_min > 0.0) & (depth_min * 0.999 < near * (1 - 1e-12))))
+    return int(np.count_nonzero((depth_min > 0.0) & (depth_min < near)))
 
 
 def fit_cube(ctx: PlanContext, s: Subject, reach: CubeReach, fit: np.ndarray) -> Fit:
     """Six 90-degree faces from the nearest caster to the farthest receiver (Chebyshev depth,
     the depth along the face axis)."""
-    far = reach.far
-    near = float(max(reach.depth_min[fit].min() * 0.999, far * MIN_MAP_NEAR_SHARE))
+    near, far = _map_depth_range(float(reach.depth_min[fit].min()), reach.far)
     d_light = float(np.median(reach.cheb[s.receivers].mean(axis=1).clip(min=near)))
     # A face spans two units at unit depth.
     size = ctx.map_size_for(2 * d_light, s.receivers, cube=True, toward=toward_light(s))

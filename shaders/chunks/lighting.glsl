@@ -20,7 +20,15 @@ uniform vec3 u_light_position[NUM_LIGHTS];
 uniform vec3 u_light_direction[NUM_LIGHTS];  // the way the light travels
 uniform vec3 u_light_radiance[NUM_LIGHTS];   // colour x intensity
 #if HAS_SPOT
-uniform vec2 u_light_cone[NUM_LIGHTS];       // cos(outer), cos(inner)
+// 1 - cos(outer), 1 - cos(inner), worked out in float64 (2 sin^2 of half the angle): a cone a
+// hundredth of a degree wide is 1 - 1.5e-8 in cos, which float32 rounds to 1.
+uniform vec2 u_light_cone[NUM_LIGHTS];
+// The point of each spot's axis nearest the scene's centre (origin-relative), and the distance
+// from the light to it along the axis, worked out in float64: a point's angle off the axis is
+// then measured with small numbers only. Through the light's own position (5e10 units away,
+// where float32 steps by 4096) the direction to the light is no finer than 1e-7 radians.
+uniform vec3 u_light_axis_point[NUM_LIGHTS];
+uniform float u_light_axis_offset[NUM_LIGHTS];
 #endif
 #if HAS_POSITIONAL
 uniform float u_light_range[NUM_LIGHTS];     // 0: unlimited
@@ -43,8 +51,22 @@ float light_attenuation(int i, vec3 p, out vec3 l) {
         }
 #if HAS_SPOT
         if (LIGHT_TYPE[i] == LIGHT_SPOT) {
-            atten *= smoothstep(u_light_cone[i].x, u_light_cone[i].y,
-                                dot(-l, u_light_direction[i]));
+            // glTF's smooth falloff between the cones, smoothstep(cos outer, cos inner, cos),
+            // taken in 1 - cos, from tan^2 of the angle off the axis (x): 1 - cos =
+            // x / (sqrt(1 + x) (sqrt(1 + x) + 1)) keeps float32's relative precision at small
+            // angles, where cos itself rounds to 1 (a spot 1e5 units away whose cone just holds
+            // a scene a few units across lit nothing). Behind the light: outside every cone.
+            vec3 axis = u_light_direction[i];
+            vec3 q = p - u_light_axis_point[i];
+            float along_q = dot(q, axis);
+            float along = along_q + u_light_axis_offset[i];
+            vec3 perp = q - along_q * axis;
+            float x = dot(perp, perp) / max(along * along, 1e-30);
+            float r = sqrt(1.0 + x);
+            float off = along > 0.0 ? x / (r * (r + 1.0)) : 2.0;
+            vec2 cone = u_light_cone[i];
+            float t = clamp((cone.x - off) / (cone.x - cone.y), 0.0, 1.0);
+            atten *= t * t * (3.0 - 2.0 * t);
         }
 #endif
     }

@@ -8,7 +8,9 @@
 #if NUM_MAPS_2D > 0
 in vec4 v_map2d[NUM_MAPS_2D];              // u_map2d_matrix x world, from camera_pass.vert
 uniform MAP2D u_map2d[NUM_MAPS_2D];
-uniform mat4 u_map2d_matrix[NUM_MAPS_2D];  // world -> biased light clip (normal offset)
+// World -> biased light clip, its z row the stored depth t for both projections (see
+// camera_pass.map2d_matrix); the normal offset transforms its moved point with it.
+uniform mat4 u_map2d_matrix[NUM_MAPS_2D];
 uniform vec4 u_map2d_range[NUM_MAPS_2D];   // near, far, one step of the stored depth, map size
 #if NORMAL_OFFSET
 // World size of a texel at light depth d: x + y * d (orthographic: y = 0; perspective: x = 0).
@@ -21,9 +23,9 @@ uniform vec2 u_map2d_texel[NUM_MAPS_2D];
 //   plane: xy, the tangent per unit of the plane's coefficients (a, b) (see below);
 //          zw, the stored depth's change per texel per unit of tangent.
 //   depth: x, the texel's size in stored depth (texel / span); y, the quantisation bias in stored
-//          depth; z, 1 / span; w, span (far - near).
+//          depth; z, span (far - near).
 uniform vec4 u_map2d_plane[NUM_MAPS_2D];
-uniform vec4 u_map2d_depth[NUM_MAPS_2D];
+uniform vec3 u_map2d_depth[NUM_MAPS_2D];
 // Per slot, 1 for a perspective map (spot lights), 0 for an orthographic one: a constant of the
 // variant, as a runtime choice would run both projections' code on every pixel.
 const int MAP2D_PERSP[NUM_MAPS_2D] = int[NUM_MAPS_2D](MAP2D_PERSPECTIVE);
@@ -45,9 +47,10 @@ Map2dDerivatives map2d_derivatives() {
 }
 
 // Shadow of the receiver at p in 2D map m. `c` is the interpolated light coordinate from the
-// vertex shader (bias matrix applied: xy in [0, 1] after the divide by w; z is the linear depth
-// t of an orthographic map, w the distance along a perspective map's axis), `cx` and `cy` its
-// screen derivatives; `ng` and `cos_l` serve the normal offset only.
+// vertex shader (bias matrix applied: xy in [0, 1] after the divide by w; z is the stored linear
+// depth t, w a perspective map's distance along its axis), `cx` and `cy` its screen
+// derivatives; `ng` and `cos_l` serve the normal offset only. A perspective map's depth is read
+// from t, not from w: far from the light w is large and float32 keeps little of w - near.
 //
 // The receiver's plane comes from the derivatives, with no normal: c's components are affine in
 // world space, so on a triangle the depth is an affine function of c.x and c.y, and the two
@@ -61,7 +64,7 @@ float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp,
     vec4 range = u_map2d_range[m];
     float size = range.w;
     vec4 k = u_map2d_plane[m];
-    vec4 z = u_map2d_depth[m];
+    vec3 z = u_map2d_depth[m];
 #if NORMAL_OFFSET
     vec2 tx = u_map2d_texel[m];
     float texel0 = persp ? tx.y * c.w : tx.x;
@@ -71,14 +74,14 @@ float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp,
     // Nothing casts between a perspective map's light and its near plane (the nearest caster),
     // nor behind the light, where a point light fitted by a frustum around its casters
     // (plan.fit.caster_cone) still shines: the divide below would fold such points into the map.
-    if (persp && c.w <= range.x) return 1.0;
+    if (persp && c.z <= 0.0) return 1.0;
     float inv_w = persp ? 1.0 / c.w : 1.0;
     vec2 uv = persp ? c.xy * inv_w : c.xy;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    float t = persp ? (c.w - range.x) * z.z : c.z;
+    float t = c.z;
     // Solve (cx.xy; cy.xy) (a, b) = (cx, cy).depth for the plane's coefficients. A receiver
     // seen edge-on by the camera makes the system singular: its tangent goes to the clamp.
-    vec2 dd = persp ? vec2(cx.w, cy.w) : vec2(cx.z, cy.z);
+    vec2 dd = persp ? vec2(cx.z, cy.z) * z.z : vec2(cx.z, cy.z);  // w = near + t span
     vec2 ab = vec2(dd.x * cy.y - cx.y * dd.y, cx.x * dd.y - dd.x * cy.x)
         * (1.0 / (cx.x * cy.y - cx.y * cy.x));
     // The plane's tangent to the light along each map axis (world depth over world texel), held
@@ -94,7 +97,7 @@ float visibility_2d_from(MAP2D map, vec4 c, vec4 cx, vec4 cy, int m, bool persp,
     Plane pl;
     pl.ref = t - bias_world(texel_t, length(tan_axes)) - z.y;
     pl.slope = tan_axes * (persp ? k.zw * c.w : k.zw);
-    pl.persp = persp ? -tan_axes * k.zw * z.w : vec2(0.0);
+    pl.persp = persp ? -tan_axes * k.zw * z.z : vec2(0.0);
     return shadow_2d(map, uv, pl, size);
 }
 
