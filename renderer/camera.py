@@ -155,18 +155,25 @@ def _auto_near(scene: Scene, eye: np.ndarray, sphere_near: float, zfar: float) -
     return znear
 
 
+def _boxes_ahead(camera: Camera, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Each instance box's distance from the eye (N,), and whether it lies ahead of the camera
+    and does not hold the eye (N,) bool (a box around the eye says nothing of where its
+    surfaces lie)."""
+    eye = camera.position
+    d = nearest_box_distances(scene, eye)
+    bounds = scene_arrays(scene).bounds
+    centre = (bounds[:, 0] + bounds[:, 1]) / 2
+    return d, ((centre - eye) @ -camera.pose[:3, 2] > 0.0) & (d > 0.0)
+
+
 def near_clip_warning(camera: Camera, scene: Scene, params: CameraParams | None) -> str:
     """A warning when the automatic near plane clips geometry in front of the camera: an
     instance box (not one around the eye) that lies wholly nearer than it, ahead of the eye.
     Empty when the request gave ``znear``."""
     if params is not None and params.znear is not None:
         return ""
-    eye = camera.position
-    d = nearest_box_distances(scene, eye)
-    bounds = scene_arrays(scene).bounds
-    centre = (bounds[:, 0] + bounds[:, 1]) / 2
-    ahead = (centre - eye) @ -camera.pose[:3, 2] > 0.0
-    clipped = (d > 0.0) & (d < camera.znear) & ahead
+    d, ahead = _boxes_ahead(camera, scene)
+    clipped = ahead & (d < camera.znear)
     if not clipped.any():
         return ""
     return (f"camera: the automatic near plane at {camera.znear:.3g} units (it comes no nearer "
@@ -187,14 +194,10 @@ def precision_warning(camera: Camera, scene: Scene, origin: np.ndarray) -> str:
     (``origin``, where the upload is placed) that a pixel there is finer than float32 places
     positions: jagged edges and noisy shading. The nearest geometry is the nearest instance box
     ahead of the eye (not one around it), at least the near plane away."""
-    eye = camera.position
-    d = nearest_box_distances(scene, eye)
-    bounds = scene_arrays(scene).bounds
-    centre = (bounds[:, 0] + bounds[:, 1]) / 2
-    ahead = ((centre - eye) @ -camera.pose[:3, 2] > 0.0) & (d > 0.0)
+    d, ahead = _boxes_ahead(camera, scene)
     near = max(float(d[ahead].min()) if ahead.any() else camera.znear, camera.znear)
     pixel = near * 2.0 * math.tan(camera.yfov / 2) / camera.height
-    far_out = float(np.linalg.norm(eye - origin)) + near
+    far_out = float(np.linalg.norm(camera.position - origin)) + near
     if pixel >= far_out * VIEW_PRECISION:
         return ""
     return (f"camera: the nearest geometry in view ({near:.3g} units away, {pixel:.3g} units a "

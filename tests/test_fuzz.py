@@ -219,24 +219,12 @@ def test_fuzz_mutated_models(renderer):
     failures: list[str] = []
     outcomes = {"ok": 0, "error": 0}
     for name, data in mutations(models_dir(), MUTATIONS, FUZZ_SEED):
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", RuntimeWarning)
-            try:
-                result = renderer.render(load_scene(data, file_type="glb", limits=Limits()),
-                                         SMALL)
-            except RequestError as exc:  # the request is SMALL: a fault of the file
-                failures.append(f"{name}: a request error for the file's fault: {exc}")
-                continue
-            except ShadowMapError:
-                outcomes["error"] += 1
-                continue
-            except Exception as exc:  # noqa: BLE001 - what the test looks for
-                failures.append(f"{name}: crash: {type(exc).__name__}: {str(exc)[:200]}")
-                continue
-        outcomes["ok"] += 1
-        numeric = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
-        if numeric and not result.warnings:
-            failures.append(f"{name}: rendered without a warning after numpy's {numeric[:3]}")
+        # the request is SMALL: a RequestError would blame it for a fault of the file
+        result = _render_checked(
+            renderer, lambda data=data: load_scene(data, file_type="glb", limits=Limits()),
+            SMALL, name, failures, outcomes)
+        if result is None:
+            continue
         if result.color is None or result.color.shape[:2] != (SMALL["height"], SMALL["width"]):
             failures.append(f"{name}: color {getattr(result.color, 'shape', None)}")
     # Both outcomes, plenty of each: the mutations neither all break nor all miss.
@@ -459,26 +447,37 @@ def test_fuzz_scaled_scenes(renderer):
             continue
         label = (f"#{k} {name} x{scale:.3g} +{tuple(f'{o:.3g}' for o in offset)}, {kind}, "
                  f"{params['shadows']}, ground {params['ground']}")
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", RuntimeWarning)
-            try:
-                result = renderer.render(scene, params)
-            except RequestError as exc:
-                failures.append(f"{label}: a request error: {exc}")
-                continue
-            except ShadowMapError:
-                outcomes["error"] += 1
-                continue
-            except Exception as exc:  # noqa: BLE001 - what the test looks for
-                failures.append(f"{label}: crash: {type(exc).__name__}: {str(exc)[:200]}")
-                continue
-        outcomes["ok"] += 1
-        numeric = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
-        if numeric and not result.warnings:
-            failures.append(f"{label}: rendered without a warning after numpy's {numeric[:3]}")
+        _render_checked(renderer, lambda scene=scene: scene, params, label, failures, outcomes)
     # Most render: the scales stay where float64 can place a camera on most of them.
     assert outcomes["ok"] >= SCALED // 2, outcomes
     assert not failures, f"{len(failures)} of {SCALED}:\n" + "\n".join(failures)
+
+
+def _render_checked(renderer: Any, scene: Any, params: dict, label: str, failures: list[str],
+                    outcomes: dict[str, int]) -> Any:
+    """The fuzz oracle of one render: ``scene()`` (built inside, so that a load failure counts)
+    rendered with ``params``. A ShadowMapError other than a RequestError counts as "error", a
+    render as "ok"; a RequestError, any other exception, or a render during which numpy
+    overflowed or met an invalid value and that carries no warning, is added to ``failures``.
+    Returns the result, or None."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        try:
+            result = renderer.render(scene(), params)
+        except RequestError as exc:
+            failures.append(f"{label}: a request error: {exc}")
+            return None
+        except ShadowMapError:
+            outcomes["error"] += 1
+            return None
+        except Exception as exc:  # noqa: BLE001 - what the fuzz tests look for
+            failures.append(f"{label}: crash: {type(exc).__name__}: {str(exc)[:200]}")
+            return None
+    outcomes["ok"] += 1
+    numeric = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    if numeric and not result.warnings:
+        failures.append(f"{label}: rendered without a warning after numpy's {numeric[:3]}")
+    return result
 
 
 def _move_one(scene: Any, index: int, offset: np.ndarray) -> Any:
