@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
@@ -34,9 +34,6 @@ from .errors import ReferenceUnavailable, RequestError
 from .lights import Light
 from .plan.geometry import FACING_COS
 from .scene import BLEND_SHADOW_CUTOFF, Scene
-
-if TYPE_CHECKING:
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 #: Continuation step of primary rays through cut-outs, as a fraction of the scene diagonal.
 EPS_REL = 1e-5
@@ -76,20 +73,18 @@ class ReferenceResult:
     seconds: float
 
 
-def _intersector_class() -> type[RayMeshIntersector]:
-    """trimesh's embree-backed intersector; refuses the slow pure-Python fallback."""
+def _embree() -> tuple[Any, Any]:
+    """embreex's scene and triangle-mesh classes; refuses a missing embreex (there is no fast
+    fallback)."""
     try:
-        import embreex  # noqa: F401
-        from trimesh.ray import ray_pyembree
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
     except ImportError as exc:
         raise ReferenceUnavailable(
             "the ray-traced reference needs embreex: pip install 'shadowmap-service[reference]' "
             f"(or pip install embreex); import failed with: {exc}"
         ) from None
-    cls = ray_pyembree.RayMeshIntersector
-    if not cls.__module__.endswith("ray_pyembree"):
-        raise ReferenceUnavailable("trimesh's embree intersector is not available")
-    return cls
+    return rtcore_scene.EmbreeScene, TriangleMesh
 
 
 def _texel_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -130,29 +125,30 @@ def _texel_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 class _Bvh:
-    """An embree BVH over a subset of the scene's triangles, answering in global face indices."""
+    """An embree BVH over a subset of the scene's triangles, answering in global face indices.
 
-    def __init__(self, tri: np.ndarray, faces: np.ndarray,
-                 cls: type[RayMeshIntersector]) -> None:
-        import trimesh
+    Built on embreex directly, with the triangles in the tracer's frame as they are: trimesh's
+    wrapper moves every coordinate to the mesh's lowest corner first, which undoes a frame
+    centred beside the eye (a close view of a vast scene)."""
 
+    def __init__(self, tri: np.ndarray, faces: np.ndarray) -> None:
         self.faces = faces
-        self._rmi: RayMeshIntersector | None
+        self._scene: Any = None
         if len(faces) == 0:
-            self._rmi = None
             return
-        verts = tri[faces].reshape(-1, 3)
-        mesh = trimesh.Trimesh(
-            vertices=verts, faces=np.arange(len(verts)).reshape(-1, 3), process=False,
-            validate=False,
-        )
-        self._rmi = cls(mesh)
+        scene_cls, mesh_cls = _embree()
+        verts = np.ascontiguousarray(tri[faces].reshape(-1, 3), np.float32)
+        self._scene = scene_cls()
+        mesh_cls(scene=self._scene, vertices=verts,
+                 indices=np.arange(len(verts), dtype=np.int32).reshape(-1, 3))
 
     def first(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Global index of the nearest triangle hit, -1 for a miss; shape (N,)."""
-        if self._rmi is None or len(origins) == 0:
+        if self._scene is None or len(origins) == 0:
             return np.full(len(origins), -1, np.int64)
-        local = np.asarray(self._rmi.intersects_first(origins, directions), np.int64)
+        local = np.asarray(self._scene.run(np.ascontiguousarray(origins, np.float32),
+                                           np.ascontiguousarray(directions, np.float32)),
+                           np.int64)
         out = np.full(len(origins), -1, np.int64)
         hit = local >= 0
         out[hit] = self.faces[local[hit]]
@@ -162,10 +158,10 @@ class _Bvh:
 class _Tracer:
     """The scene's triangles in the normalised frame, with per-face material data and BVHs."""
 
-    def __init__(self, scene: Scene) -> None:
-        cls = _intersector_class()
+    def __init__(self, scene: Scene, centre: np.ndarray | None = None) -> None:
+        _embree()  # refused before any work when embreex is missing
         lo, hi = scene.bounds
-        self.centre = (lo + hi) / 2
+        self.centre = (lo + hi) / 2 if centre is None else np.asarray(centre, np.float64)
         diag = float(np.linalg.norm(hi - lo))
         self.diag = diag if np.isfinite(diag) and diag > 0 else 1.0
         self.eps = EPS_REL
@@ -218,9 +214,9 @@ class _Tracer:
 
         pf = np.flatnonzero(primary_in)
         sf = np.flatnonzero(shadow_in)
-        self.primary_bvh = _Bvh(self.tri, pf, cls)
+        self.primary_bvh = _Bvh(self.tri, pf)
         # Most scenes have no BLEND surfaces and no non-casters: share one BVH then.
-        self.shadow_bvh = self.primary_bvh if np.array_equal(pf, sf) else _Bvh(self.tri, sf, cls)
+        self.shadow_bvh = self.primary_bvh if np.array_equal(pf, sf) else _Bvh(self.tri, sf)
 
     # ---------------------------------------------------------------------------------------
 
