@@ -10,6 +10,8 @@ The matrix helpers themselves (``perspective``, ``look_at``, ``pose_from_directi
 from __future__ import annotations
 
 import math
+import threading
+import weakref
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -18,8 +20,8 @@ import numpy as np
 from .errors import RequestError, SceneError
 from .params import CameraParams
 from .plan.geometry import look_at, perspective
-from .plan.instances import scene_arrays, scene_box  # Scene.bounds, read once per scene
-from .scene import Scene
+from .plan.instances import primitive_edge, scene_arrays, scene_box  # Scene.bounds, once per scene
+from .scene import Scene, instance_arrays
 
 #: The automatic near plane's distance, as a share of the far plane's, where no geometry is nearer
 #: (a camera inside the scene's bounding sphere).
@@ -183,28 +185,114 @@ def near_clip_warning(camera: Camera, scene: Scene, params: CameraParams | None)
             "for one depth range; give camera.znear and camera.zfar")
 
 
-#: Positions the GPU gets are float32, relative to the scene's centre: at distance M from it they
+#: Positions the GPU gets are float32, relative to the render's origin: at distance M from it they
 #: step by about M * 2**-23, and a view transform of such a position errs by a few steps. A view
 #: whose nearest pixels are finer than 4 such steps (2**-21 of M) shows them.
 VIEW_PRECISION = 2.0**-21
+#: Share of the precision budget of the nearest pixels the eye's origin may stand off the eye:
+#: it is snapped to a grid this fine, so that nearby views share an origin (and an upload's
+#: matrices, plans and light maps).
+ORIGIN_SNAP_SHARE = 1.0 / 16
 
 
-def precision_warning(camera: Camera, scene: Scene, origin: np.ndarray) -> str:
-    """A warning when the camera looks so closely at geometry so far from the scene's centre
-    (``origin``, where the upload is placed) that a pixel there is finer than float32 places
-    positions: jagged edges and noisy shading. The nearest geometry is the nearest instance box
-    ahead of the eye (not one around it), at least the near plane away."""
+@dataclass(frozen=True)
+class ViewOrigin:
+    """Where a view's GPU coordinates start (:func:`view_origin`).
+
+    Attributes
+    ----------
+    origin : ndarray, shape (3,), float64
+    at : str
+        ``"scene_centre"`` (where the upload is placed) or ``"eye"`` (a grid point beside it).
+    warning : str
+        Empty, or what float32 still cannot resolve from that origin.
+    """
+
+    origin: np.ndarray
+    at: str
+    warning: str = ""
+
+
+# (local, own) of :func:`_own_reach` by scene, weakly: nothing is written into the scene.
+_OWN: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_OWN_LOCK = threading.Lock()
+
+
+def _own_reach(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Per instance (N,) each, float64: the reach of its local coordinates (its box's farthest
+    corner from the instance's own origin), and a first bound of what its float32 values span
+    (the larger of that and its box's diagonal, which bounds its longest triangle edge). Kept
+    per scene: they do not depend on the view."""
+    with _OWN_LOCK:
+        hit = _OWN.get(scene)
+    if hit is not None:
+        return hit
+    arrays = instance_arrays(scene)
+    bounds = arrays.bounds
+    local = np.linalg.norm(np.max(np.abs(bounds - arrays.matrices[:, None, :3, 3]), axis=1),
+                           axis=1)
+    own = np.maximum(np.linalg.norm(bounds[:, 1] - bounds[:, 0], axis=1), local)
+    out = (_read_only(local), _read_only(own))
+    with _OWN_LOCK:
+        _OWN[scene] = out
+    return out
+
+
+def view_origin(camera: Camera, scene: Scene, centre: np.ndarray) -> ViewOrigin:
+    """The origin of a view's GPU coordinates: the scene's centre unless this camera looks so
+    closely at geometry so far from it that a pixel there is finer than float32 places positions
+    (jagged edges, noisy shading and shadows); then a point beside the eye, where the view's
+    nearest pixels need the precision (``GpuScene.set_origin`` writes the instance matrices
+    relative to it, in float64).
+
+    Each instance box ahead of the eye (not one around it) is checked at its nearest distance
+    ``near`` (at least the near plane): its pixels there are ``near * 2 tan(yfov / 2) / height``
+    wide, and the float32 values drawn there reach ``|eye - origin| + near + own`` from the
+    origin, where ``own`` is the larger of the instance's longest triangle edge (a varying is
+    interpolated from the triangle's vertices) and the reach of its local coordinates (a mesh
+    far from its own origin). Shortfalls from the eye's origin are said in the warning.
+    """
     d, ahead = _boxes_ahead(camera, scene)
-    near = max(float(d[ahead].min()) if ahead.any() else camera.znear, camera.znear)
-    pixel = near * 2.0 * math.tan(camera.yfov / 2) / camera.height
-    far_out = float(np.linalg.norm(camera.position - origin)) + near
-    if pixel >= far_out * VIEW_PRECISION:
-        return ""
-    return (f"camera: the nearest geometry in view ({near:.3g} units away, {pixel:.3g} units a "
-            f"pixel there) lies about {far_out:.3g} units from the scene's centre, where the "
-            f"GPU's float32 positions step by about {far_out * 2.0**-23:.3g} units: edges and "
-            "shading there show those steps; view it from further away, or render that part as "
-            "a scene of its own")
+    idx = np.flatnonzero(ahead)
+    if not len(idx):
+        return ViewOrigin(centre, "scene_centre")
+    near = np.maximum(d[idx], camera.znear)
+    pixel = near * (2.0 * math.tan(camera.yfov / 2) / camera.height)
+    local_all, own_all = _own_reach(scene)
+    local, own = local_all[idx], own_all[idx]
+    eye = camera.position
+
+    def short(origin: np.ndarray) -> np.ndarray:
+        reach = float(np.linalg.norm(eye - origin)) + near + own
+        return pixel < reach * VIEW_PRECISION
+
+    coarse = short(centre)
+    if not coarse.any():
+        return ViewOrigin(centre, "scene_centre")
+    arrays = instance_arrays(scene)
+    used, inverse = np.unique(arrays.primitive[idx[coarse]], return_inverse=True)
+    edges = np.array([primitive_edge(scene.primitives[p]) for p in used.tolist()])
+    stretch = np.linalg.norm(arrays.matrices[idx[coarse], :3, :3], ord=2, axis=(1, 2))
+    own[coarse] = np.maximum(edges[inverse.reshape(-1)] * stretch, local[coarse])
+    if not short(centre).any():
+        return ViewOrigin(centre, "scene_centre")
+    budget = float(pixel.min()) / VIEW_PRECISION * ORIGIN_SNAP_SHARE
+    q = 2.0 ** math.floor(math.log2(budget))
+    origin = np.round(eye / q) * q
+    still = short(origin)
+    if not still.any():
+        return ViewOrigin(origin, "eye")
+    reach = float(np.linalg.norm(eye - origin)) + near + own
+    worst = int(np.argmax(np.where(still, reach * VIEW_PRECISION / pixel, 0.0)))
+    inst = scene.instances[int(idx[worst])]
+    name = repr(inst.name) if inst.name else f"instance {int(idx[worst])}"
+    return ViewOrigin(origin, "eye", (
+        f"camera: {name} ({near[worst]:.3g} units away, {pixel[worst]:.3g} units a pixel there) "
+        f"is drawn from float32 values up to {reach[worst]:.3g} units from the view's origin "
+        f"(its triangles or its own coordinates span {own[worst]:.3g} units), where the GPU's "
+        f"float32 positions step by about {reach[worst] * 2.0**-23:.3g} units: edges and "
+        "shading there show those steps; view it from further away, or split it into smaller "
+        "parts"))
 
 
 def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height: int) -> Camera:

@@ -4,9 +4,10 @@ For every pixel a primary ray finds the visible surface; for every light a shado
 surface says whether anything that casts shadows lies between the surface and the light. No
 filtering, no bias tuning: what a perfect shadow map would give.
 
-All tracing happens in a normalised frame (scene centre at the origin, bounding-box diagonal 1),
-computed in float64 before anything reaches embree's float32 BVH. That keeps the result the same
-whether the scene is millimetres wide or sits 1e5 units away from the origin.
+All tracing happens in a normalised frame (the render's origin at the origin: the scene's centre,
+or a point beside the eye of a close view of a vast scene; bounding-box diagonal 1), computed in
+float64 before anything reaches embree's float32 BVH. That keeps the result the same whether the
+scene is millimetres wide or sits 1e5 units away from the origin.
 
 Shadow rays start just off their surface by an offset relative to the local geometry, not to the
 scene: a few float32 steps of the surface triangle's own coordinates (what embree's copy of it
@@ -29,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, view_origin
 from .errors import ReferenceUnavailable, RequestError
 from .lights import Light
 from .plan.geometry import FACING_COS
@@ -395,7 +396,11 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
             raise RequestError(f"light {k} has a non-finite position or direction")
         if light.type != "point" and not np.linalg.norm(light.direction) > 0:
             raise RequestError(f"light {k} has a zero-length direction")
-    tr = _Tracer(scene)
+    # Centred where the renderer's view is (camera.view_origin): a close view of a part of a
+    # vast scene, far from its centre, is traced in a frame beside the eye, where float32 keeps
+    # the precision its pixels need.
+    lo, hi = scene.bounds
+    tr = _Tracer(scene, view_origin(camera, scene, (lo + hi) / 2).origin)
     h, w = camera.height, camera.width
     cam_o, dirs = camera.pixel_rays()
     forward = -camera.pose[:3, 2]

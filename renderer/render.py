@@ -28,8 +28,8 @@ from .camera import (
     Camera,
     near_clip_warning,
     orthonormalize_pose,
-    precision_warning,
     resolve_camera,
+    view_origin,
 )
 from .encodings import debug_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
@@ -128,9 +128,10 @@ class _Prepared:
 
     ``scene`` is the one drawn (with the ground when asked), ``params`` the request with its
     ``max_map_size`` held to what fits, ``warnings`` the request's and the file's, ``origin``
-    the upload's (the centre of the scene's bounds), ``plan_key`` the plan cache's key ("" to
-    plan anew), ``camera_report`` the plan's ``camera`` entry, ``resolve_seconds`` the time the
-    camera, lights and key took when made.
+    where the view's GPU coordinates start (the centre of the scene's bounds, where the upload
+    is placed, or a point beside the eye: :func:`view_origin`), ``plan_key`` the plan cache's
+    key ("" to plan anew), ``camera_report`` the plan's ``camera`` entry, ``resolve_seconds``
+    the time the camera, lights and key took when made.
     """
 
     scene: Scene
@@ -493,13 +494,18 @@ class Renderer:
         origin = (lo + hi) / 2
         check_gpu_range(scene.bounds, origin, [camera.position] + [
             lt.position for lt in lights if lt.type != "directional"], scene_placed=True)
-        coarse = precision_warning(camera, scene, origin)
-        if coarse:
-            warnings.append(coarse)
+        # A view that looks closely at a part far from the centre is drawn relative to a point
+        # beside its eye instead (GpuScene.set_origin).
+        placed = view_origin(camera, scene, origin)
+        if placed.warning:
+            warnings.append(placed.warning)
+        origin = placed.origin
         key = (plan_key(scene, camera, lights, origin, params, params_json)
                if self.plans.enabled else "")
-        return _Prepared(scene, params, warnings, camera, lights, origin, key,
-                         _camera_report(camera, scene), time.perf_counter() - t)
+        report = _camera_report(camera, scene)
+        report["origin"], report["origin_at"] = origin.tolist(), placed.at
+        return _Prepared(scene, params, warnings, camera, lights, origin, key, report,
+                         time.perf_counter() - t)
 
     def _render(self, prep: _Prepared, timings: dict[str, float], t0: float) -> RenderResult:
         from OpenGL import GL
@@ -509,11 +515,12 @@ class Renderer:
         scene, params, camera, lights = prep.scene, prep.params, prep.camera, prep.lights
         t = time.perf_counter()
         gpu, kept, hit = self._upload(scene)
+        gpu.set_origin(prep.origin)
         timings["upload"] = time.perf_counter() - t
         try:
             t = time.perf_counter()
             plan, _, plan_hit = self.plans.get_or_make(
-                prep.plan_key, lambda: make_plan(scene, camera, lights, gpu.origin, params,
+                prep.plan_key, lambda: make_plan(scene, camera, lights, prep.origin, params,
                                                  self.scene_fits))
             # Every map is a 2D or 2D array texture (cube faces and cascades are layers).
             check_map_sizes((lp.map_size for lp in plan.map_lights), self.context.max_texture_size)

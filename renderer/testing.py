@@ -190,6 +190,24 @@ def degenerate_geometry() -> Scene:
     return scene
 
 
+def part_far_out(far: float, origin_box: bool = True) -> Scene:
+    """A vast scene of two parts: a 10 x 10 tile with a box and a post on it (the caster on
+    the ground of :func:`caster_on_ground`, a larger tile), placed ``far`` units along X by its
+    instance matrices (as glTF nodes place parts), and a unit box at the world's origin
+    (``origin_box``). The scene's centre lies half-way between; a close view of the tile
+    needs the precision that only an origin beside the eye gives."""
+    parts = [_plane(10.0), _box((1, 1, 1), (0, 1.0, 0)), _box((0.3, 1.2, 0.3), (1.6, 0.6, 0.8))]
+    built = scene_from_meshes(parts + ([_box((1, 1, 1), (0, 0.5, 0))] if origin_box else []))
+    instances = []
+    for i, inst in enumerate(built.instances):
+        m = np.eye(4)
+        m[0, 3] = far if i < len(parts) else 0.0
+        local = built.primitives[inst.primitive].local_bounds.astype(np.float64)
+        instances.append(Instance(inst.primitive, m, inst.cast_shadow, inst.receive_shadow,
+                                  inst.name, world_bounds(local, m)))
+    return Scene(built.primitives, instances, key=f"part_far_out:{far!r}:{origin_box}")
+
+
 def many_small_objects(n: int = 200, seed: int = 3) -> Scene:
     """A box over a ground plane, plus ``n`` small boxes 60-90 units away along +Z (behind a
     camera at positive Z looking at the origin)."""

@@ -171,6 +171,39 @@ def test_poses_are_exactly_the_shifted_matrices(renderer, boxes):
         gpu.release()
 
 
+def test_a_new_origin_rewrites_every_instance_buffer(renderer, boxes):
+    """``set_origin`` writes ``T(-origin) @ M`` again into every primitive's instance buffer,
+    computed in float64: far from the scene's centre the float32 matrices keep the small
+    offsets that the ones relative to the centre rounded away. The same origin writes
+    nothing."""
+    from shadowmap.renderer.gl.resources import GpuScene
+
+    renderer.context.make_current()
+    gpu = GpuScene.upload(boxes)
+    try:
+        centre = gpu.origin.copy()
+        far = np.array([1e7 + 0.25, -3e6 + 0.125, 0.5])
+        gpu.set_origin(far)
+        assert np.array_equal(gpu.origin, far) and not gpu.origin.flags.writeable
+        for gp in gpu.primitives:
+            shift = np.eye(4)
+            shift[:3, 3] = -far
+            expected = np.stack([shift @ boxes.instances[i].matrix for i in gp.instances])
+            assert np.array_equal(gp.mesh.read_poses(), expected.astype(np.float32))
+        before = [gp.mesh.read_poses() for gp in gpu.primitives]
+        gpu.set_origin(far.copy())
+        assert all(np.array_equal(gp.mesh.read_poses(), b)
+                   for gp, b in zip(gpu.primitives, before, strict=True))
+        gpu.set_origin(centre)
+        shift = np.eye(4)
+        shift[:3, 3] = -centre
+        gp = gpu.primitives[0]
+        expected = np.stack([shift @ boxes.instances[i].matrix for i in gp.instances])
+        assert np.array_equal(gp.mesh.read_poses(), expected.astype(np.float32))
+    finally:
+        gpu.release()
+
+
 def _flagged(split: bool) -> Scene:
     """A board overhead shading a row of boxes of one primitive whose receive flags alternate;
     with ``split``, the non-receivers are a second primitive (the same data): drawn apart."""

@@ -817,3 +817,70 @@ def test_an_ortho_depth_range_stays_open_at_any_magnitude():
     for d in (-3.17e16, 4.3e9, 1e-300, 0.0):
         near, far = ortho_depth_range(d, d)
         assert far > near and np.isfinite(2.0 / (far - near))
+
+
+# -- the view's origin ---------------------------------------------------------------------
+
+
+def _two_parts(far: float, baked: bool = False) -> Scene:
+    """A unit box at the origin and one ``far`` along X: placed by its matrix, or with its
+    vertices there (``baked``, a mesh far from its own origin)."""
+    near_box, far_box = T._box((1, 1, 1), (0, 0.5, 0)), T._box((1, 1, 1), (0, 0.5, 0))
+    m = np.eye(4)
+    if baked:
+        far_box.apply_translation((far, 0, 0))
+    else:
+        m[0, 3] = far
+    built = scene_from_meshes([near_box, far_box])
+    matrices = [np.eye(4), m]
+    instances = [Instance(i.primitive, mm, True, True, i.name,
+                          world_bounds(built.primitives[i.primitive].local_bounds
+                                       .astype(np.float64), mm))
+                 for i, mm in zip(built.instances, matrices, strict=True)]
+    return Scene(built.primitives, instances, key=f"two_parts:{far}:{baked}")
+
+
+def _origin_of(scene: Scene, eye, target):
+    from shadowmap.renderer.camera import view_origin
+    from shadowmap.renderer.params import CameraParams
+
+    cam = resolve_camera(CameraParams(eye=eye, target=target), scene, 320, 240)
+    lo, hi = scene.bounds
+    return view_origin(cam, scene, (lo + hi) / 2)
+
+
+def test_a_view_stays_at_the_scene_centre_while_float32_resolves_its_pixels():
+    scene = _two_parts(1e3)
+    placed = _origin_of(scene, [1e3 + 2, 3, 3], [1e3, 0.5, 0])
+    assert placed.at == "scene_centre" and placed.warning == ""
+    np.testing.assert_array_equal(placed.origin, [500.0, 0.5, 0.0])
+
+
+def test_a_close_view_far_from_the_centre_moves_to_a_grid_point_beside_its_eye():
+    """1e6 units out the nearest pixels (0.01 units) are finer than float32 steps there; the
+    origin moves beside the eye, snapped to a grid so that nearby views share it."""
+    scene = _two_parts(1e6)
+    a = _origin_of(scene, [1e6 + 2, 3, 3], [1e6, 0.5, 0])
+    b = _origin_of(scene, [1e6 + 2.001, 3.001, 3], [1e6, 0.5, 0])
+    assert a.at == b.at == "eye" and a.warning == b.warning == ""
+    np.testing.assert_array_equal(a.origin, b.origin)
+    assert np.linalg.norm(a.origin - [1e6 + 2, 3, 3]) < 1e3
+    # The grid: a power of two within 1/16 of what the nearest pixels (0.0096 units, the far
+    # box 2.6 units away) allow, 2**10 here.
+    np.testing.assert_array_equal(a.origin, np.round(np.array([1e6 + 2, 3, 3]) / 1024) * 1024)
+
+
+def test_a_mesh_far_from_its_own_origin_keeps_its_warning():
+    """The same box with its vertices 1e6 units out: the file's float32 coordinates are that
+    coarse, and no origin gives the precision back."""
+    placed = _origin_of(_two_parts(1e6, baked=True), [1e6 + 2, 3, 3], [1e6, 0.5, 0])
+    assert placed.at == "eye"
+    assert "its triangles or its own coordinates span 1e+06 units" in placed.warning
+
+
+def test_the_longest_edge_of_a_primitive():
+    from shadowmap.renderer.plan.instances import primitive_edge
+
+    prim = scene_from_meshes([T._plane(4.0)]).primitives[0]
+    assert primitive_edge(prim) == pytest.approx(4.0 * math.sqrt(2.0))
+    assert primitive_edge(prim) == primitive_edge(prim)  # cached

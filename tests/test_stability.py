@@ -349,24 +349,53 @@ def test_a_camera_close_to_a_part_of_a_large_scene_sees_it(renderer):
     result = renderer.render(scene, {"width": 160, "height": 120, "camera": camera,
                                      "outputs": ["color", "depth"],
                                      "lights": [{"direction": [-0.2, -1.0, -0.1]}]})
-    assert result.warnings == []
+    assert not any("near plane" in w for w in result.warnings), result.warnings
     assert np.nanmin(result.depth) < 6.0  # the box's nearest face, drawn
     assert result.plan["camera"]["znear"] < 5.0
 
 
 @pytest.mark.parametrize(("far_end", "says"), [
-    (1e6, "float32 positions step by about 0.119 units"),
+    (1e6, "'plane' (5.39 units away, 0.0372 units a pixel there) is drawn from float32 values up "
+          "to 2e+06 units"),
     (1e9, "the automatic near plane at 202 units"),
 ])
 def test_what_a_close_camera_in_a_vast_scene_cannot_show_is_said(renderer, far_end, says):
-    """1e6 units from the scene's centre float32 steps by 0.12 units, coarser than the view's
-    pixels at the box: the picture shows the steps, and says so. 1e9 units out the depth range
-    from the camera to the far end is 4e8 times the box's distance, past what the near plane
-    follows (1e-7 of the far plane): the box is clipped, and that is said too."""
+    """The view is drawn from a point beside the eye, but the plane under the box is two
+    triangles 2e6 units long: what the GPU interpolates over them steps by 0.24 units, coarser
+    than the view's pixels there, and that is said. 1e9 units out the depth range from the
+    camera to the far end is 4e8 times the box's distance, past what the near plane follows
+    (1e-7 of the far plane): the box is clipped, and that is said too."""
     scene, camera = _box_at_the_far_end(far_end)
     result = renderer.render(scene, {"width": 160, "height": 120, "camera": camera,
                                      "lights": [{"direction": [-0.2, -1.0, -0.1]}]})
     assert any(says in w for w in result.warnings), result.warnings
+
+
+@pytest.mark.parametrize("far", [1e5, 1e7, 1e9])
+def test_a_close_view_of_a_far_part_of_a_vast_scene_is_drawn_from_its_eye(renderer, far):
+    """A camera 3 units from a part 1e5 units from the scene's other part (a vast scene: the
+    centre lies half-way). Drawn relative to the scene's centre, float32 positions there step
+    by 0.006 units, more than half a pixel: edges and shadows came out jagged (shadow IoU 0.68
+    against the same part drawn alone, with a warning), and at 1e7 the shadow was left out.
+    The view is now drawn relative to a point beside its eye: the same picture as the part
+    alone at its own origin."""
+    params = {"width": 320, "height": 240, "outputs": ["color", "visibility"],
+              "lights": [{"direction": [-0.3, -1.0, -0.2]}]}
+    alone = renderer.render(T.part_far_out(0.0, origin_box=False),
+                            dict(params, camera={"eye": [2, 3, 3], "target": [0, 0.5, 0]}))
+    # Past 1e7 the depth from the eye to the far box needs the request's own near plane.
+    depth = {"znear": 0.5, "zfar": 3 * far} if far > 1e7 else {}
+    far_out = renderer.render(T.part_far_out(far), dict(params, camera={
+        "eye": [far + 2, 3, 3], "target": [far, 0.5, 0], **depth}))
+    assert far_out.warnings == []
+    camera = far_out.plan["camera"]
+    assert camera["origin_at"] == "eye"
+    # A grid point beside the eye, far nearer to it than the scene's centre (far / 2 away).
+    assert np.linalg.norm(np.subtract(camera["origin"], [far + 2, 3, 3])) < 0.02 * far
+    shade, shade_alone = far_out.visibility[..., 0] < 0.5, alone.visibility[..., 0] < 0.5
+    assert (shade & shade_alone).sum() / (shade | shade_alone).sum() > 0.99
+    differ = np.abs(far_out.color.astype(int) - alone.color.astype(int)).max(axis=-1) > 8
+    assert differ.mean() < 1e-3
 
 
 @pytest.mark.parametrize("kind", ["spot", "point"])

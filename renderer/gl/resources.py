@@ -90,6 +90,20 @@ class VertexArray:
         self.nbytes += data.nbytes
         return buf
 
+    def write_poses(self, poses: np.ndarray) -> None:
+        """Replace the model matrices (as many as the buffer holds), e.g. for a new origin.
+
+        Parameters
+        ----------
+        poses : ndarray, shape (K, 4, 4)
+        """
+        data = np.ascontiguousarray(np.transpose(poses, (0, 2, 1)), np.float32)
+        if len(data) != self.instances:
+            raise ValueError(f"{len(data)} model matrices for a buffer of {self.instances}")
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self.model_buffer)
+        GL.glBufferSubData(GL.GL_ARRAY_BUFFER, 0, data.nbytes, data)
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, 0)
+
     def read_poses(self) -> np.ndarray:
         """The model matrices as the GPU holds them (read back, for checks).
 
@@ -385,6 +399,30 @@ _GROUPS_MEMO_MAX = 4096
 _GROUPS_MEMO_ENTRIES = 32
 
 
+def origin_poses(matrices: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """Model matrices relative to ``origin``: ``T(-origin) @ M`` in float64, so that float32 on
+    the GPU keeps its precision near the origin, wherever the scene lies.
+
+    Parameters
+    ----------
+    matrices : ndarray, shape (K, 4, 4)
+    origin : ndarray, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (K, 4, 4), float64 (a new array)
+    """
+    out = np.array(matrices, np.float64)
+    if np.all(out[:, 3] == (0.0, 0.0, 0.0, 1.0)):
+        # Affine: only the translation changes, by exactly the subtraction the product computes
+        # (the other terms add zeros).
+        out[:, :3, 3] -= origin
+        return out
+    shift = np.eye(4)
+    shift[:3, 3] = -np.asarray(origin, np.float64)
+    return np.matmul(shift, out)
+
+
 @dataclass(eq=False)
 class GpuScene:
     """A scene uploaded to one context, positioned relative to ``origin``.
@@ -458,11 +496,6 @@ class GpuScene:
         gs.prim_of, gs.slot = prim_of, slot
         gs.blended = np.array([scene.primitives[p].material.alpha_mode == "BLEND"
                                for p in used[by_first].tolist()], bool)
-        # T(-origin) @ M: for affine matrices only the translation changes, by exactly the
-        # subtraction the product computes (the other terms add zeros).
-        affine = bool(np.all(matrices[:, 3] == (0.0, 0.0, 0.0, 1.0)))
-        shift = np.eye(4)
-        shift[:3, 3] = -origin
         if _has_multi_draw_indirect():
             gs.indirect = IndirectBuffer()
         textures: dict[int, Texture2D] = {}
@@ -470,11 +503,7 @@ class GpuScene:
             for g, pidx in enumerate(used[by_first].tolist()):
                 prim = scene.primitives[pidx]
                 inst_ids = order[starts[g]:starts[g] + counts[g]]
-                if affine:
-                    poses = matrices[inst_ids]
-                    poses[:, :3, 3] -= origin
-                else:
-                    poses = np.matmul(shift, matrices[inst_ids])
+                poses = origin_poses(matrices[inst_ids], origin)
                 has_uv = prim.uv is not None
                 has_color = prim.colors is not None
                 mesh = VertexArray((prim.positions, prim.normals, prim.uv, prim.colors),
@@ -514,6 +543,21 @@ class GpuScene:
                 t.release()
             raise
         return gs
+
+    def set_origin(self, origin: np.ndarray) -> None:
+        """Place the upload relative to ``origin`` (shape (3,), float64): every instance
+        buffer's model matrices are written again as ``T(-origin) @ M``. A view that looks
+        closely at a part of a vast scene far from its centre is drawn relative to a point near
+        its eye (:func:`renderer.camera.view_origin`), where float32 keeps the precision its
+        pixels need. Nothing is written when the origin is the current one."""
+        origin = np.asarray(origin, np.float64)
+        if np.array_equal(origin, self.origin):
+            return
+        matrices = instance_arrays(self.scene).matrices
+        for gp in self.primitives:
+            gp.mesh.write_poses(origin_poses(matrices[gp.instances], origin))
+        self.origin = origin.copy()
+        self.origin.flags.writeable = False
 
     def groups(self, instances: npt.ArrayLike, split: np.ndarray | None = None,
                classes: int = 2) -> list[tuple[int, int, np.ndarray]]:

@@ -42,6 +42,8 @@ _PLANES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _PATCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 # +1, -1 or 0 per primitive (:func:`primitive_closure`), same way.
 _CLOSURE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# The longest triangle edge per primitive (:func:`primitive_edge`), same way.
+_EDGE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 # SceneArrays by scene, same reasoning. One lock for both maps: the service may plan on more than
 # one thread, and a weak mapping is not safe to grow from two at once.
 _SCENES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -144,6 +146,28 @@ def primitive_closure(prim: Primitive) -> int:
                 result = -1 if volume < 0 else 1
     with _LOCK:
         _CLOSURE[prim] = result
+    return result
+
+
+def primitive_edge(prim: Primitive) -> float:
+    """The longest edge of any of the primitive's triangles, in its local units (0 without
+    triangles). Cached per primitive.
+
+    A varying the GPU interpolates over a triangle is as precise as the triangle's vertices'
+    float32 coordinates: a plane of two triangles 1e6 units long carries their error into the
+    pixels beside the eye (:func:`renderer.camera.view_origin`).
+    """
+    with _LOCK:
+        if prim in _EDGE:
+            return float(_EDGE[prim])
+    f = np.asarray(prim.indices, np.intp).reshape(-1, 3)
+    result = 0.0
+    if len(f):
+        v = np.asarray(prim.positions, np.float64)[f]  # (F, 3, 3)
+        d = v - np.roll(v, -1, axis=1)
+        result = float(np.sqrt(np.max(np.einsum("fij,fij->fi", d, d))))
+    with _LOCK:
+        _EDGE[prim] = result
     return result
 
 
