@@ -3,9 +3,10 @@
 The same cases as tests/test_stability.py, run for all five encodings (the tests assert on the
 default only) and for the ``depth`` encoding held to 32 bits (``depth_bits: 32``; the ``depth``
 column is ``auto``, which picks 16 bits where the map's depth range allows; each case's name
-says what it picked), plus the large scenes of tests/test_cascades.py (terrain to the horizon,
-a small box on a 10,000-unit plane, a city grid from street level; at the origin and 1e6 away)
-scored by their worst band of camera distance. Printed as a Markdown table and written to
+says what it picked), plus close views of a part of a vast scene (``testing.part_far_out``),
+plus the large scenes of tests/test_cascades.py (terrain to the horizon, a small box on a
+10,000-unit plane, a city grid from street level; at the origin and 1e6 away) scored by their
+worst band of camera distance. Printed as a Markdown table and written to
 bench/results/stability.md.
 
     python bench/stability.py [--quick]
@@ -81,6 +82,12 @@ def cases(quick: bool):
                "target": (np.array(CAMERA["target"]) * scale + o).tolist()}
         out.append((f"scale {scale:g}, offset {off:g}", T.transformed(base, scale, (off,) * 3),
                     dict(camera=cam, lights=[light]), "iou"))
+    # A close view of one part of a vast scene (its other part 1e5 or 1e7 units away, the
+    # scene's centre half-way): drawn relative to a point beside the eye.
+    for far in (1e5, 1e7):
+        out.append((f"close view of a part {far:g} from the rest", T.part_far_out(far),
+                    dict(camera={"eye": [far + 2, 3, 3], "target": [far, 0.5, 0]},
+                         lights=[{"direction": [-0.3, -1.0, -0.2]}]), "iou"))
     out += [
         ("spot cone 179 deg", base, dict(camera=CAMERA, lights=[
             {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0],
