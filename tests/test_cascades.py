@@ -307,6 +307,31 @@ def test_a_spot_light_says_when_its_map_is_too_coarse_for_near_receivers():
     assert not compact.warnings
 
 
+@pytest.mark.parametrize("light, shadows, limit", [
+    ({"direction": [-0.3, -1.0, -0.2]}, {"cascades": 1}, "max_map_size 1024"),
+    ({"direction": [-0.3, -1.0, -0.2]}, {"fit": "scene"}, "max_map_size 1024"),
+    ({"type": "point", "position": [0.0, 10.0, -20.0]}, {}, "(512 per cube face)"),
+])
+def test_every_map_says_when_it_is_too_coarse_for_near_receivers(light, shadows, limit):
+    """A single directional map (no cascades, or one map for the scene) and a point light's
+    cube over receivers from 4 to 500 units are capped like a spot's map, and say so: what the
+    nearest receivers want (whatever the limit), the limit (a cube face's half of it) and how
+    much coarser it leaves them. Cascades, fitted to the view, serve them unsaid."""
+    large = T.terrain_to_horizon()
+    coarse = _plan(large.scene, large.camera, light, max_map_size=1024, **shadows)
+    (w,) = coarse.warnings
+    lp = coarse.lights[0]
+    assert lp.kind == ("cube" if "type" in light else "ortho")
+    assert w.startswith("light 0") and "would need" in w and limit in w, w
+    assert f"up to {lp.needed / lp.map_size:.1f}x coarser" in w
+    assert ('fit "view"' in w) == (shadows.get("fit") == "scene")
+    finer = _plan(large.scene, large.camera, light, max_map_size=4096, **shadows)
+    assert finer.lights[0].needed == pytest.approx(lp.needed)
+    assert finer.lights[0].map_size == 4 * lp.map_size
+    if "cascades" in shadows:
+        assert not _plan(large.scene, large.camera, light, max_map_size=1024).warnings
+
+
 @pytest.mark.gl
 def test_the_plans_warnings_reach_the_result(renderer):
     large = T.terrain_to_horizon()

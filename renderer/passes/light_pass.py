@@ -20,7 +20,7 @@ from ..gl.programs import ProgramCache
 from ..gl.resources import Framebuffer, GpuScene
 from ..params import ShadowParams
 from ..plan import LightShadow
-from ..plan.fit import DEPTH16_STEP
+from ..plan.fit import depth_step
 
 #: Internal format of a depth-encoded map by its plan's ``depth_bits``.
 DEPTH_FORMATS = {16: GL.GL_DEPTH_COMPONENT16, 32: GL.GL_DEPTH_COMPONENT32F}
@@ -48,9 +48,7 @@ class ShadowMap:
     def step(self) -> float:
         """One step of the stored depth t (the unit of the quantisation bias and of the polygon
         offset): the encoding's, or a 16-bit depth texture's 1/65535."""
-        if self.encoding == "depth" and self.plan.depth_bits == 16:
-            return DEPTH16_STEP
-        return encodings.STEP[self.encoding]
+        return depth_step(self.encoding, self.plan.depth_bits)
 
     def read_depth(self) -> np.ndarray:
         """Decoded linear depth, NaN where nothing was drawn.

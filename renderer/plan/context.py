@@ -260,11 +260,19 @@ class PlanContext:
         and (given where the light is) no longer than one pixel across the grazing-lit flat
         faces of the receivers (:meth:`receiver_distance`).
         """
+        return self.map_size_and_need(world, receivers, cube, toward)[0]
+
+    def map_size_and_need(self, world: float, receivers: np.ndarray, cube: bool = False,
+                          toward: Toward | None = None) -> tuple[int, float]:
+        """:meth:`map_size_for`, and the texels per side the same receivers want at one camera
+        pixel per texel (what 'auto' would give them but for ``max_map_size``: the plan warns
+        when that is over the limit, :func:`~.plan._resolution_warning`)."""
         pixel = self.pixel_per_distance * self.receiver_distance(receivers, toward)
-        size = self.map_size(world / max(pixel, 1e-300), cube)
+        wanted = world / max(pixel, 1e-300)
+        size = self.map_size(wanted, cube)
         if self.sizes_read is not None:
             self.sizes_read.append((world, receivers, cube, toward, size))
-        return size
+        return size, wanted * AUTO_TEXEL_PIXELS
 
     def margin(self, extent: float, size: int) -> float:
         """Padding of a map side ``extent`` wide, in the same unit: PCF taps and the normal offset

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 
+from .. import encodings
 from .context import AUTO_TEXEL_PIXELS, Toward
 from .geometry import (
     CUBE_FACE_PLANES,
@@ -59,9 +60,11 @@ MIN_RELATIVE_EXTENT = 2.0**-20
 
 #: The nearest a perspective or cube map's near plane comes to the light, as a share of its far
 #: plane: its casters' nearest points set it, down to this. The maps store linear depth, so a
-#: deep range costs no depth precision; this floor is about where float32 light-view depths of
-#: positions that far away stop resolving the distance to the light (2**-22). A caster wholly
-#: nearer the light than that is clipped from the map, with a warning.
+#: near plane close to the light takes no precision from the rest of the range (what a deep
+#: range costs is its quantisation bias, :data:`DEPTH_STEP_WARN_TEXELS`); this floor is about
+#: where float32 light-view depths of positions that far away stop resolving the distance to
+#: the light (2**-22). A caster wholly nearer the light than that is clipped from the map, with
+#: a warning.
 MIN_MAP_NEAR_SHARE = 2.0**-22
 
 #: A 16-bit depth texture is used (``shadows.depth_bits: "auto"``) when one of its steps, a
@@ -72,6 +75,13 @@ MIN_MAP_NEAR_SHARE = 2.0**-22
 DEPTH16_MAX_STEP_TEXELS = 0.125
 #: The step of a 16-bit UNORM depth texture, in units of the stored depth t in [0, 1].
 DEPTH16_STEP = 1.0 / 65535.0
+#: The plan warns of a map whose quantisation bias (``bias.quantisation_steps`` of its depth
+#: steps over its depth range) is over this many of its texels where its receivers are (the
+#: depth its size is chosen for): more than the default bias reaches on the steepest receivers
+#: (0.5 + 0.25 x 10 texels), so shadows of casters that near to what they fall on are lost (a
+#: point light a few units from its casters with receivers 1e7 units away in one map: 0.9
+#: units, about 200 texels).
+DEPTH_STEP_WARN_TEXELS = 4.0
 
 
 @dataclass(frozen=True)
@@ -143,7 +153,23 @@ class Fit:
     faces: list[int] = field(default_factory=list)
     face_views: list[np.ndarray] = field(default_factory=list)
     needed: float = 0.0  # texels per side 'auto' would want, before max_map_size
+    texel_depth: float = 0.0  # perspective and cube: the light depth its size is chosen for
     near_clipped: int = 0  # casters wholly ahead of the light but nearer than ``near``
+
+
+def depth_step(encoding: str, depth_bits: int) -> float:
+    """One step of a map's stored depth t (the unit of the quantisation bias and of the polygon
+    offset): the encoding's (:data:`~shadowmap.renderer.encodings.STEP`, a 32-bit float depth
+    texture's for ``"depth"``), or a 16-bit depth texture's 1/65535."""
+    if encoding == "depth" and depth_bits == 16:
+        return DEPTH16_STEP
+    return encodings.STEP[encoding]
+
+
+def texel_at(depth: float, texel: tuple[float, float]) -> float:
+    """A map's texel at light depth ``depth``, in world units (see :attr:`Fit.texel`); at its
+    near plane, its smallest."""
+    return texel[0] + texel[1] * max(depth, 0.0)
 
 
 def depth16_is_enough(near: float, far: float, texel: tuple[float, float]) -> bool:
@@ -159,7 +185,7 @@ def depth16_is_enough(near: float, far: float, texel: tuple[float, float]) -> bo
         (:attr:`Fit.texel`): the same everywhere in an orthographic map, smallest at ``near``
         in a perspective or cube one.
     """
-    finest = texel[0] + texel[1] * max(near, 0.0)
+    finest = texel_at(near, texel)
     step = (far - near) * DEPTH16_STEP
     return bool(finest > 0 and step <= DEPTH16_MAX_STEP_TEXELS * finest)
 
@@ -237,7 +263,7 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
     extent = max(x1 - x0, y1 - y0, 1e-300)
     if extent < MIN_RELATIVE_EXTENT * max(abs(x0), abs(x1), abs(y0), abs(y1), abs(near)):
         return Skip("below_precision")
-    size = ctx.map_size_for(extent, s.receivers, toward=toward_light(s))
+    size, needed = ctx.map_size_and_need(extent, s.receivers, toward=toward_light(s))
     pad = ctx.margin(extent, size)
     x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
     # Only the receivers under the (padded) window can be shadowed: a lookup anywhere else
@@ -248,7 +274,7 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
     far += pad
     near, far = ortho_depth_range(near, far)
     return Fit(kind="ortho", view=reach.view, proj=ortho(x0, x1, y0, y1, near, far), near=near,
-               far=far, map_size=size, texel=(max(x1 - x0, y1 - y0) / size, 0.0))
+               far=far, map_size=size, texel=(max(x1 - x0, y1 - y0) / size, 0.0), needed=needed)
 
 
 def ortho_depth_range(near: float, far: float) -> tuple[float, float]:
@@ -419,7 +445,7 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     # (at one camera pixel per texel: the half pixel 'auto' aims at is a target, not a need)
     needed = extent * ratio / (ctx.pixel_per_distance / AUTO_TEXEL_PIXELS)
     return Fit(kind="perspective", view=reach.view, proj=proj, near=near, far=far, map_size=size,
-               texel=(0.0, float(max(a_hi - a_lo)) / size), needed=needed,
+               texel=(0.0, float(max(a_hi - a_lo)) / size), needed=needed, texel_depth=d_light,
                near_clipped=_near_clipped(reach.depth_min[fit], near))
 
 
@@ -564,9 +590,11 @@ def fit_cube(ctx: PlanContext, s: Subject, reach: CubeReach, fit: np.ndarray) ->
     near, far = _map_depth_range(float(reach.depth_min[fit].min()), reach.far)
     d_light = float(np.median(reach.cheb[s.receivers].mean(axis=1).clip(min=near)))
     # A face spans two units at unit depth.
-    size = ctx.map_size_for(2 * d_light, s.receivers, cube=True, toward=toward_light(s))
+    size, needed = ctx.map_size_and_need(2 * d_light, s.receivers, cube=True,
+                                         toward=toward_light(s))
     return Fit(kind="cube", view=np.eye(4), proj=perspective(math.pi / 2, 1.0, near, far),
                near=near, far=far, map_size=size, texel=(0.0, 2.0 / size), faces=list(reach.faces),
+               needed=needed, texel_depth=d_light,
                near_clipped=_near_clipped(reach.depth_min[fit], near),
                face_views=list(reach.face_views))
 

@@ -22,9 +22,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .cascades import CascadeFit, plan_cascades
-from .context import PlanContext, Toward
+from .context import MIN_AUTO_MAP, PlanContext, Toward
 from .culling import select_casters
-from .fit import MIN_MAP_NEAR_SHARE, Fit, Skip, Subject, choose_method, depth16_is_enough
+from .fit import (
+    DEPTH_STEP_WARN_TEXELS,
+    MIN_MAP_NEAR_SHARE,
+    Fit,
+    Skip,
+    Subject,
+    choose_method,
+    depth16_is_enough,
+    depth_step,
+    texel_at,
+)
 from .instances import _frozen
 from .shadow_region import (
     MAX_SPLIT_RECEIVERS,
@@ -91,7 +101,12 @@ class LightShadow:
     texel_pixels : float
         Camera pixels one texel of this cascade covers at its near end (0: not a cascade).
     needed : float
-        Spot maps: the texels per side its most demanding seen receiver wants (0: not known).
+        The texels per side its seen receivers want at one camera pixel per texel, before
+        ``max_map_size``: spot maps, the most demanding seen receiver; orthographic and cube
+        maps, the nearest (as their 'auto' size weighs them); 0: not known (cascades).
+    texel_depth : float
+        Perspective and cube maps: the light depth of the receivers its size is chosen for (a
+        typical one's); 0 for orthographic maps, whose texels are the same at every depth.
     near_clipped : int
         Perspective and cube maps: casters wholly ahead of the light that begin nearer than the
         map's near plane (:data:`~.fit.MIN_MAP_NEAR_SHARE` of its far plane), clipped from it;
@@ -127,6 +142,7 @@ class LightShadow:
     blend: float = 0.0
     texel_pixels: float = 0.0
     needed: float = 0.0
+    texel_depth: float = 0.0
     near_clipped: int = 0
     depth_bits: int = 0
     one_sided: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
@@ -157,7 +173,8 @@ class LightShadow:
         return cls(index=index, light=light, position=position, kind=fit.kind, view=fit.view,
                    proj=fit.proj, near=fit.near, far=fit.far, map_size=fit.map_size,
                    texel=fit.texel, casters=casters, faces=fit.faces, face_views=fit.face_views,
-                   skipped=skipped, needed=fit.needed, near_clipped=fit.near_clipped)
+                   skipped=skipped, needed=fit.needed, near_clipped=fit.near_clipped,
+                   texel_depth=fit.texel_depth)
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"type": self.light.type, "shadow_map": self.kind}
@@ -300,6 +317,7 @@ def make_plan(
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     warnings += [_precision_warning(lp) for lp in planned if lp.reason == "below_precision"]
     warnings += [_near_warning(lp) for lp in planned if lp.near_clipped]
+    warnings += [_depth_step_warning(lp, params) for lp in planned if lp.kind is not None]
     return RenderPlan(
         camera=camera,
         origin=origin,
@@ -350,8 +368,15 @@ class SceneFitPlan:
     light: LightShadow
     sizes: tuple[tuple[float, np.ndarray, bool, Toward | None, int], ...]
 
-    def fits(self, ctx: PlanContext) -> bool:
-        return all(ctx.map_size_for(w, r, c, t) == size for w, r, c, t, size in self.sizes)
+    def refit(self, ctx: PlanContext) -> LightShadow | None:
+        """The kept plan for the view of ``ctx``, with what its receivers want
+        (:attr:`LightShadow.needed`, of the last size asked), or None when a size differs."""
+        needed = self.light.needed
+        for w, r, c, t, size in self.sizes:
+            got, needed = ctx.map_size_and_need(w, r, c, t)
+            if got != size:
+                return None
+        return dataclasses.replace(self.light, needed=needed)
 
 
 def _plan_scene_fit(ctx: PlanContext, scene: Scene, index: int, light: Light,
@@ -362,8 +387,9 @@ def _plan_scene_fit(ctx: PlanContext, scene: Scene, index: int, light: Light,
         return plan_light(ctx, index, light)
     kept = memo.get(key)
     if kept is not None:
-        if kept.fits(ctx):
-            return kept.light
+        light_plan = kept.refit(ctx)
+        if light_plan is not None:
+            return light_plan
         memo.discard(key)  # this view wants another map size: planned again, kept instead
     sizes: list[tuple[float, np.ndarray, bool, Toward | None, int]] = []
     planned = plan_light(dataclasses.replace(ctx, sizes_read=sizes), index, light)
@@ -394,14 +420,26 @@ def _shadow_region(ctx: PlanContext, planned: list[LightShadow], visible: np.nda
 
 
 def _resolution_warning(lp: LightShadow, params: RenderParams) -> str:
-    """A spot light whose map cannot give every seen receiver its texel size (receivers from
-    very near to very far): what it would need, and how much coarser the limit leaves it."""
-    if params.shadows.map_size != "auto" or lp.needed <= params.shadows.max_map_size:
+    """A map that cannot give the seen receivers the texel size they want (one camera pixel per
+    texel at the nearest: :attr:`LightShadow.needed`) within ``max_map_size`` (half of it per
+    cube face): what it would need, and how much coarser the limit leaves their shadows. A
+    directional light's cascades, where the plan made them, are sized to the view instead."""
+    top = params.shadows.max_map_size
+    if lp.kind == "cube":
+        top = max(top // 2, MIN_AUTO_MAP)
+    if params.shadows.map_size != "auto" or lp.cascades or lp.needed <= top:
         return ""
     want = 1 << max(0, int(math.ceil(math.log2(lp.needed))))
+    limit = f"max_map_size {params.shadows.max_map_size}"
+    if lp.kind == "cube":
+        limit += f" ({lp.map_size} per cube face)"
+    hint = ""
+    if params.shadows.fit == "scene":
+        hint = ("; the map covers every receiver of the scene (shadows.fit \"scene\"): "
+                "fit \"view\" fits it to what the camera sees")
     return (f"light {lp.index}: the {lp.light.type} light's map would need {want}x{want} "
-            f"texels for its nearest visible receivers; max_map_size {lp.map_size} leaves "
-            f"their shadows up to {lp.needed / lp.map_size:.1f}x coarser")
+            f"texels for its nearest visible receivers; {limit} leaves their shadows up to "
+            f"{lp.needed / lp.map_size:.1f}x coarser{hint}")
 
 
 def _precision_warning(lp: LightShadow) -> str:
@@ -410,6 +448,42 @@ def _precision_warning(lp: LightShadow) -> str:
     return (f"light {lp.index}: no shadow: what casts it is narrower than the GPU's float32 "
             "positions resolve that far from the scene's centre (under a millionth of its "
             "distance), so its map would hold rounding noise; the light shines unshadowed")
+
+
+def _depth_step_warning(lp: LightShadow, params: RenderParams) -> str:
+    """A map whose depth steps over its depth range (nearest caster to deepest receiver) add a
+    quantisation bias over :data:`~.fit.DEPTH_STEP_WARN_TEXELS` of its texels where its
+    receivers are (:attr:`LightShadow.texel_depth`): the bias that keeps rounding from
+    shadowing a receiver then also lifts the shadows of casters within that distance of it (one
+    map over receivers orders of magnitude farther from the light than the ones it is sized
+    for)."""
+    shadows = params.shadows
+
+    def texels(m: LightShadow) -> float:
+        return _quantisation_world(m, params, lp.depth_bits) / max(
+            texel_at(m.texel_depth, m.texel), 1e-300)
+
+    worst = max(lp.maps, key=texels)
+    q, n = _quantisation_world(worst, params, lp.depth_bits), texels(worst)
+    if not n > DEPTH_STEP_WARN_TEXELS:
+        return ""
+    bits = (f"{lp.depth_bits}-bit{' float' if lp.depth_bits == 32 else ''} depth"
+            if shadows.encoding == "depth" else f"the {shadows.encoding} encoding")
+    hint = ""
+    if shadows.fit == "scene":
+        hint = ("; the map covers every receiver of the scene (shadows.fit \"scene\"): "
+                "fit \"view\" fits its range to what the camera sees")
+    return (f"light {lp.index}: the {lp.light.type} light's map stores depths from "
+            f"{worst.near:.3g} to {worst.far:.3g} units ({bits}), so its quantisation bias "
+            f"({shadows.bias.quantisation_steps:g} steps) is {q:.3g} units, {n:.0f} texels "
+            f"where its receivers are: the shadows of casters that near to what they fall on "
+            f"are lost{hint}")
+
+
+def _quantisation_world(m: LightShadow, params: RenderParams, depth_bits: int) -> float:
+    """Map ``m``'s quantisation bias in world units (``depth_bits``: its light's)."""
+    step = depth_step(params.shadows.encoding, depth_bits)
+    return params.shadows.bias.quantisation_steps * step * (m.far - m.near)
 
 
 def _near_warning(lp: LightShadow) -> str:
