@@ -189,6 +189,14 @@ class _Tracer:
         self.face_prim = inst_prim[self.face_inst]
         mode_code = {"OPAQUE": _OPAQUE, "MASK": _MASK, "BLEND": _BLEND}
         p_mode = np.array([mode_code.get(p.material.alpha_mode, _OPAQUE) for p in prims], np.int64)
+        # Back faces the camera pass culls: single-sided materials but BLEND (drawn from both
+        # sides). The front side follows the winding, reversed by a mirroring node (glTF: a
+        # negative determinant winds its faces clockwise; the camera pass turns glFrontFace).
+        p_cull = np.array([not p.material.double_sided and p.material.alpha_mode != "BLEND"
+                           for p in prims], bool)
+        self.cull_back = p_cull[self.face_prim]
+        mirrored = np.array([np.linalg.det(i.matrix[:3, :3]) < 0 for i in scene.instances], bool)
+        self.front = np.where(mirrored[self.face_inst][:, None], -self.normal, self.normal)
         p_cut = np.array([p.material.alpha_cutoff for p in prims], np.float64)
         p_base = np.array([float(p.material.base_color[3]) for p in prims], np.float64)
         p_vary = np.array(
@@ -297,8 +305,10 @@ class _Tracer:
         threshold: np.ndarray,
         eps: np.ndarray | None = None,
         start_face: np.ndarray | None = None,
+        cull: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Nearest hit along each ray that passes the alpha test, before ``t_max``.
+        """Nearest hit along each ray that passes the alpha test (and, with ``cull``, meets a
+        front face), before ``t_max``.
 
         Parameters
         ----------
@@ -313,6 +323,9 @@ class _Tracer:
             :data:`EPS_REL`); it doubles on a repeated hit.
         start_face : ndarray, shape (N,), optional
             The face each ray leaves, never counted as its hit.
+        cull : ndarray, shape (F,), bool, optional
+            Per face: whether a hit on its back (the ray along :attr:`front`) does not count,
+            as the camera pass culls it.
 
         Returns
         -------
@@ -352,6 +365,9 @@ class _Tracer:
             # noise and is stepped over with a growing stride.
             stuck = f == last[active]
             counts = ~stuck
+            if cull is not None:
+                back = cull[f] & (np.einsum("ij,ij->i", self.front[f], dirs[active]) > 0)
+                counts &= ~back
             check = counts & test[f]
             if check.any():
                 counts[check] = self.alpha(f[check], bc[check]) >= threshold[f[check]]
@@ -411,7 +427,8 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
     origins = (cam_o - tr.centre) / tr.diag + dirs * t_near[:, None]
     # Rays lost among more than MAX_LAYERS cut-outs come back as misses: no geometry, not valid.
     face, t, _, _ = tr.first_hits(
-        tr.primary_bvh, origins, dirs, t_far - t_near, tr.primary_test, tr.primary_threshold
+        tr.primary_bvh, origins, dirs, t_far - t_near, tr.primary_test, tr.primary_threshold,
+        cull=tr.cull_back,
     )
     hit = face >= 0
     depth = np.full(h * w, np.nan)

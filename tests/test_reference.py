@@ -420,6 +420,55 @@ def test_gltf_texcoord_v_zero_is_top_image_row():
     assert (got == expected).mean() >= 0.995
 
 
+def _sheet_over_ground(facing_up: bool, double_sided: bool = False, mirror: bool = False):
+    """A 2 x 2 sheet 1.5 over the ground, its front up or down, single- or double-sided, and
+    placed by a node that mirrors it along x (it lies where it did: glTF winds a mirrored
+    node's faces clockwise, so its front side stays the one it had)."""
+    from shadowmap.renderer.scene import Instance, world_bounds
+
+    sheet = quad(1.0, 1.5)
+    if not facing_up:
+        sheet.invert()
+    if double_sided:
+        sheet.visual = trimesh.visual.TextureVisuals(
+            material=trimesh.visual.material.PBRMaterial(doubleSided=True))
+    scene = scene_from_meshes([quad(10, 0.0), sheet])
+    if mirror:
+        inst = scene.instances[1]
+        m = np.diag([-1.0, 1.0, 1.0, 1.0])
+        local = scene.primitives[inst.primitive].local_bounds.astype(np.float64)
+        scene.instances[1] = Instance(inst.primitive, m, inst.cast_shadow, inst.receive_shadow,
+                                      inst.name, world_bounds(local, m))
+    return scene
+
+
+@pytest.mark.parametrize("facing_up, double_sided, mirror, seen", [
+    (True, False, False, True),
+    (False, False, False, False),
+    (False, True, False, True),
+    (True, False, True, True),
+    (False, False, True, False),
+])
+def test_the_camera_sees_past_the_back_of_single_sided_faces(facing_up, double_sided, mirror,
+                                                            seen):
+    """Primary rays pass through the back of a single-sided face, as the camera pass culls it
+    (a room of inward-facing walls seen from outside shows its inside: the reference saw the
+    walls' backs, and its metrics read IoU 0 against a right picture); a double-sided face
+    stops them from both sides, and a mirrored node keeps its front side. Shadow rays stop at
+    either side: the sheet shadows the ground under it in every case."""
+    scene = _sheet_over_ground(facing_up, double_sided, mirror)
+    assert scene.primitives[1].material.double_sided == double_sided
+    cam = camera()
+    ref = trace_reference(scene, cam, [directional([0, -1, 0])])
+    on_ground, g = ground_points(cam, ref)
+    assert (on_ground.sum() < np.isfinite(ref.depth).sum()) == seen
+    gp = g[on_ground]
+    under = (np.abs(gp[:, 0]) < 1) & (np.abs(gp[:, 2]) < 1)
+    assert under.sum() > 50
+    got = ref.visibility[..., 0][on_ground] < 0.5
+    assert (got == under).mean() >= 0.995
+
+
 def test_light_without_shadows_is_all_lit():
     scene = scene_from_meshes([quad(10, 0.0), box()])
     sun = directional([0, -1, 0])

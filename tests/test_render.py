@@ -312,3 +312,15 @@ def test_reference_metrics_without_lights_are_empty(renderer, demo):
         r = renderer.render(demo, RenderParams(lights=[], reference=True, outputs=outputs,
                                                width=32, height=24))
         assert r.metrics == [] and r.visibility is None
+
+
+def test_a_closed_room_seen_from_outside_matches_the_reference(renderer):
+    """The camera outside a room of inward-facing, single-sided walls sees into it past their
+    backs (the camera pass culls them), the floor in the shadow of the ceiling: the reference
+    sees the same (it saw the walls' lit backs, and read IoU 0 against this picture)."""
+    for direction in ([-0.3, -1.0, -0.2], [0.5, -0.3, 0.2]):
+        result = renderer.render(T.room(), RenderParams.model_validate({
+            "width": 160, "height": 120, "reference": True,
+            "lights": [{"direction": direction}]}))
+        (m,) = result.metrics
+        assert m["iou"] >= 0.98 and m["pixels"] > 2000, m
