@@ -84,7 +84,7 @@ class Floor:
         starts, counts, pos, nrm = [], [], [], []
         first = 0
         for inst in scene.instances:
-            tri = scene.world_triangles(inst) - origin  # (F, 3, 3)
+            tri = scene.world_triangles(inst, origin)  # (F, 3, 3)
             v = tri.reshape(-1, 3)
             e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
             n = np.repeat(np.cross(e1, e2), 3, axis=0)

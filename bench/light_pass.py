@@ -109,7 +109,7 @@ def traced_depths(scene, plan, origin: np.ndarray, rows: np.ndarray, cols: np.nd
     from trimesh.ray.ray_pyembree import RayMeshIntersector
 
     lp = plan.lights[0]
-    tris = np.concatenate([scene.world_triangles(i) for i in scene.instances]) - origin
+    tris = np.concatenate([scene.world_triangles(i, origin) for i in scene.instances])
     mesh = trimesh.Trimesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3),
                            process=False)
     size = lp.map_size

@@ -101,8 +101,11 @@ class Camera:
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         return np.broadcast_to(self.position, d.shape).copy(), d
 
-    def frustum_corners(self) -> np.ndarray:
-        """World-space corners of the view frustum, shape (8, 3)."""
+    def frustum_corners(self, origin: np.ndarray | None = None) -> np.ndarray:
+        """Corners of the view frustum, shape (8, 3): in world space, or relative to
+        ``origin`` (subtracted from the eye before the corners are placed: near corners a
+        fraction of a float64 step of the eye's world coordinates from it keep their
+        precision)."""
         t = math.tan(self.yfov / 2)
         aspect = self.width / self.height
         pts = []
@@ -111,7 +114,8 @@ class Camera:
                 for sy in (-1, 1):
                     pts.append((sx * z * t * aspect, sy * z * t, -z))
         p = np.array(pts)
-        return p @ self.pose[:3, :3].T + self.pose[:3, 3]
+        eye = self.pose[:3, 3] if origin is None else self.pose[:3, 3] - origin
+        return p @ self.pose[:3, :3].T + eye
 
 
 def orthonormalize_pose(matrix: np.ndarray, what: str) -> np.ndarray:

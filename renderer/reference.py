@@ -169,8 +169,10 @@ class _Tracer:
 
         tris, inst_of, local_of = [], [], []
         for k, inst in enumerate(scene.instances):
-            t = scene.world_triangles(inst)
-            tris.append((t - self.centre) / self.diag)
+            # Placed relative to the centre: subtracted after placing, a small part far from the
+            # world's origin would keep only its world coordinates' float64 steps.
+            t = scene.world_triangles(inst, self.centre)
+            tris.append(t / self.diag)
             inst_of.append(np.full(len(t), k, np.int64))
             local_of.append(np.arange(len(t), dtype=np.int64))
         self.tri = np.concatenate(tris)  # (F, 3, 3) float64, normalised frame

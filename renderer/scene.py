@@ -246,15 +246,28 @@ class Scene:
         _extend_arrays(self, grounded)
         return grounded
 
-    def world_triangles(self, instance: Instance) -> np.ndarray:
-        """Triangles of one instance in world space.
+    def world_triangles(self, instance: Instance,
+                        origin: np.ndarray | None = None) -> np.ndarray:
+        """Triangles of one instance in world space, or relative to ``origin``.
+
+        Parameters
+        ----------
+        instance : Instance
+        origin : ndarray, shape (3,), optional
+            Subtracted from the instance's translation before its vertices are placed: a part
+            far smaller than its distance from the world's origin keeps the precision float64
+            has beside ``origin`` (world coordinates of a part 1e-6 across, 1.8e8 units out,
+            step by 3e-8, 4 % of its size).
 
         Returns
         -------
         ndarray, shape (F, 3, 3), float64
         """
         prim = self.primitives[instance.primitive]
-        v = prim.positions.astype(np.float64) @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
+        move = instance.matrix[:3, 3]
+        if origin is not None:
+            move = move - np.asarray(origin, np.float64)
+        v = prim.positions.astype(np.float64) @ instance.matrix[:3, :3].T + move
         return v[prim.indices]
 
 

@@ -14,6 +14,7 @@ settings the way this project's tests and benchmarks do:
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import time
@@ -71,7 +72,9 @@ def measure(renderer: Renderer, scene: Scene,
 
 def transformed(scene: Scene, scale: float = 1.0,
                 offset: Sequence[float] = (0.0, 0.0, 0.0)) -> Scene:
-    """The same scene scaled about the origin and then translated (in float64 node matrices)."""
+    """The same scene scaled about the origin and then translated (in float64 node matrices),
+    with the file's cameras and lights: placed alike, their ranges (near and far planes, a
+    light's range) scaled, their orientation kept."""
     m = np.diag([scale, scale, scale, 1.0])
     m[:3, 3] = offset
     instances = [
@@ -87,7 +90,20 @@ def transformed(scene: Scene, scale: float = 1.0,
         for inst in scene.instances
     ]
     focus = None if scene.focus is None else scene.focus * scale + np.asarray(offset)
-    return Scene(scene.primitives, instances, scene.cameras, scene.lights,
+
+    def placed(pose: np.ndarray) -> np.ndarray:
+        out = np.array(pose, np.float64)
+        out[:3, 3] = out[:3, 3] * scale + np.asarray(offset, np.float64)
+        return out
+
+    def scaled(value: float | None) -> float | None:
+        return None if value is None else value * scale
+
+    cameras = [dataclasses.replace(c, pose=placed(c.pose), znear=scaled(c.znear),
+                                   zfar=scaled(c.zfar)) for c in scene.cameras]
+    lights = [dataclasses.replace(light, pose=placed(light.pose), range=scaled(light.range))
+              for light in scene.lights]
+    return Scene(scene.primitives, instances, cameras, lights,
                  key=f"{scene.key}:{scale!r}:{tuple(offset)!r}", focus=focus,
                  warnings=list(scene.warnings))
 

@@ -140,7 +140,7 @@ def slice_context(ctx: PlanContext, sl: Slice) -> PlanContext:
     cam = dataclasses.replace(ctx.camera, znear=max(sl.reach_near, ctx.camera.znear),
                               zfar=sl.far)
     planes = view_planes(cam, ctx.origin)
-    corners = cam.frustum_corners() - ctx.origin
+    corners = cam.frustum_corners(ctx.origin)
     in_view, whole = aabbs_against_frustum(ctx.bounds, planes, corners)
     receivers = _visible_receivers(in_view, ctx.receive, True)
     seen = Seen.clip(ctx.bounds, receivers, whole, planes, corners)

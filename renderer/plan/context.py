@@ -188,7 +188,7 @@ class PlanContext:
         rel = arrays.relative(origin)
         shadow = params.shadows
         planes = view_planes(camera, origin)
-        frustum_corners = _frozen(camera.frustum_corners() - origin)
+        frustum_corners = _frozen(camera.frustum_corners(origin))
         in_view, whole = aabbs_against_frustum(rel.bounds, planes, frustum_corners)
         receivers = _visible_receivers(in_view, arrays.receive, params.optimize)
         return cls(

@@ -35,7 +35,7 @@ def boxes_in_view(bounds: np.ndarray, camera: Camera, origin: np.ndarray) -> np.
     -------
     ndarray, shape (N,), bool
     """
-    return aabbs_in_frustum(bounds, view_planes(camera, origin), camera.frustum_corners() - origin)
+    return aabbs_in_frustum(bounds, view_planes(camera, origin), camera.frustum_corners(origin))
 
 
 def view_planes(camera: Camera, origin: np.ndarray) -> np.ndarray:
