@@ -389,6 +389,20 @@ def test_fuzz_server(cases, server, outside):
     assert not any(s >= 500 for s in statuses)
 
 
+def _scaling_bases() -> dict[str, Any]:
+    """The scenes the scaling fuzz tests rescale and move: real models and test scenes."""
+    from shadowmap.renderer import testing as T
+    from shadowmap.renderer.scene import scene_from_meshes
+
+    bases: dict[str, Any] = {
+        name: load_scene(models_dir() / name)
+        for name in ("Duck.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "TwoCubes.glb")}
+    bases.update(caster_on_ground=T.caster_on_ground(), room=T.room(), thin=T.thin_sheets(),
+                 box_on_plane=scene_from_meshes([T._plane(6.0), T._box((1, 1, 1), (0, 1, 0))],
+                                                ["plane", "box"]))
+    return bases
+
+
 @pytest.mark.gl
 def test_fuzz_scaled_scenes(renderer):
     """Real models and test scenes scaled by 1e-7 to 1e9 and moved up to 1e13 units (some axes
@@ -405,14 +419,9 @@ def test_fuzz_scaled_scenes(renderer):
 
     from shadowmap.renderer import testing as T
     from shadowmap.renderer.params import MAX_COORDINATE
-    from shadowmap.renderer.scene import scene_from_meshes
 
     rng = random.Random(FUZZ_SEED)
-    bases = {name: load_scene(models_dir() / name)
-             for name in ("Duck.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "TwoCubes.glb")}
-    bases.update(caster_on_ground=T.caster_on_ground(), room=T.room(), thin=T.thin_sheets(),
-                 box_on_plane=scene_from_meshes([T._plane(6.0), T._box((1, 1, 1), (0, 1, 0))],
-                                                ["plane", "box"]))
+    bases = _scaling_bases()
     failures: list[str] = []
     outcomes = {"ok": 0, "error": 0}
     for k in range(SCALED):
@@ -467,14 +476,9 @@ def test_fuzz_scale_invariance(renderer):
     import random
 
     from shadowmap.renderer import testing as T
-    from shadowmap.renderer.scene import scene_from_meshes
 
     rng = random.Random(FUZZ_SEED)
-    bases = {name: load_scene(models_dir() / name)
-             for name in ("Duck.glb", "BoxTextured.glb", "CesiumMilkTruck.glb", "TwoCubes.glb")}
-    bases.update(caster_on_ground=T.caster_on_ground(), room=T.room(), thin=T.thin_sheets(),
-                 box_on_plane=scene_from_meshes([T._plane(6.0), T._box((1, 1, 1), (0, 1, 0))],
-                                                ["plane", "box"]))
+    bases = _scaling_bases()
 
     def build(name: str, scale: float, offset: tuple, move: tuple | None) -> Any:
         scene = T.transformed(bases[name], scale, offset)
