@@ -629,6 +629,23 @@ def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vn.astype(np.float32)
 
 
+def world_bounds_many(local: np.ndarray, mats: np.ndarray) -> np.ndarray:
+    """World bounds of a local box under many matrices at once.
+
+    Parameters
+    ----------
+    local : ndarray, shape (2, 3)
+    mats : ndarray, shape (K, 4, 4)
+
+    Returns
+    -------
+    ndarray, shape (K, 2, 3)
+    """
+    corners = np.array(np.meshgrid(*local.T, indexing="ij")).reshape(3, -1).T  # (8, 3)
+    w = np.einsum("kij,cj->kci", mats[:, :3, :3], corners) + mats[:, None, :3, 3]
+    return np.stack([w.min(axis=1), w.max(axis=1)], axis=1)
+
+
 def world_bounds(local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     corners = np.array(np.meshgrid(*local.T)).reshape(3, -1).T
     w = corners @ matrix[:3, :3].T + matrix[:3, 3]

@@ -423,6 +423,35 @@ def test_a_tiny_model_far_out_is_seen_and_shadowed_as_the_reference_sees_it(rend
     assert m.result.warnings == []
 
 
+def test_a_part_narrower_than_a_float64_step_of_its_place_is_fitted_from_its_matrix(renderer,
+                                                                                     models):
+    """The Duck scaled to 7e-7 units and moved 9.15e9 units out, where float64 world
+    coordinates step by 1.9e-6: its world box is 0 wide along x. The point light's map was
+    fitted to that box and missed the Duck (shadow IoU 0 against the reference, unsaid); boxes
+    that coarse are now placed from the instance's matrix relative to the render's origin
+    (plan.instances.SceneArrays.coarse), and the shadow is the one at 9.15e6 units."""
+    from conftest import load_model
+    from shadowmap.renderer.plan.instances import scene_arrays
+
+    def shadow(out: float):
+        duck = T.transformed(load_model(models, "Duck.glb", ground=False), 4.363e-7,
+                             (out, 0.0, -1.64))
+        lo, hi = duck.bounds
+        centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+        light = {"type": "point",
+                 "position": (centre - np.array([0.523, -0.614, 0.591]) * size * 3630).tolist()}
+        m = T.measure(renderer, duck, RenderParams.model_validate({
+            "width": 64, "height": 48, "lights": [light], "shadows": {"fit": "scene"}}))
+        return duck, m
+
+    duck, far = shadow(9.15e9)
+    assert duck.bounds[1, 0] - duck.bounds[0, 0] == 0.0  # what float64 keeps of its width
+    assert len(scene_arrays(duck).coarse) == 1
+    _, near = shadow(9.15e6)
+    assert far.metrics[0].iou >= near.metrics[0].iou - 0.05 and far.metrics[0].iou > 0.8
+    assert far.result.warnings == []
+
+
 VAST_VARIANTS = {
     "directional": ([{"direction": [-0.3, -1.0, -0.2]}], {}),
     "directional, 3 cascades": ([{"direction": [-0.3, -1.0, -0.2]}], {"cascades": 3}),

@@ -18,7 +18,15 @@ import numpy as np
 
 from ..errors import SceneError, UnsupportedExtension
 from ..limits import MAX_COORDINATE, Limits
-from ..scene import Instance, Material, Primitive, SceneCamera, SceneLight, _vertex_normals
+from ..scene import (
+    Instance,
+    Material,
+    Primitive,
+    SceneCamera,
+    SceneLight,
+    _vertex_normals,
+    world_bounds_many,
+)
 from . import morph, skin
 from .accessors import UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, check_type
 from .admission import admit
@@ -201,7 +209,7 @@ class _Loader:
         matrices = np.concatenate([r.matrices for r in records])
         with np.errstate(over="ignore", invalid="ignore"):  # refused just below
             bounds = np.concatenate([
-                _bounds(self.primitives[r.primitive].local_bounds.astype(np.float64),
+                world_bounds_many(self.primitives[r.primitive].local_bounds.astype(np.float64),
                         r.matrices) for r in records])
         if not np.isfinite(bounds).all():
             raise SceneError("the scene's transforms and positions overflow: an instance "
@@ -684,20 +692,3 @@ class _Loader:
         if aspect is not None and aspect <= 0:
             aspect = None
         return SceneCamera(pose, yfov, znear, zfar, aspect)
-
-
-def _bounds(local: np.ndarray, mats: np.ndarray) -> np.ndarray:
-    """World bounds of a local box under many matrices at once.
-
-    Parameters
-    ----------
-    local : ndarray, shape (2, 3)
-    mats : ndarray, shape (K, 4, 4)
-
-    Returns
-    -------
-    ndarray, shape (K, 2, 3)
-    """
-    corners = np.array(np.meshgrid(*local.T, indexing="ij")).reshape(3, -1).T  # (8, 3)
-    w = np.einsum("kij,cj->kci", mats[:, :3, :3], corners) + mats[:, None, :3, 3]
-    return np.stack([w.min(axis=1), w.max(axis=1)], axis=1)

@@ -51,6 +51,10 @@ _LOCK = threading.Lock()
 # Origins kept per scene: the renderer plans relative to its upload's origin, which is the same
 # for every request on a scene; a few more cover callers that pass their own.
 _MAX_ORIGINS = 4
+#: An instance whose world box float64 resolves to fewer steps across than this (its largest
+#: side over the step of its largest coordinate) is placed from its matrix relative to each
+#: origin (:meth:`SceneArrays.relative`).
+MIN_BOX_STEPS = 2.0**20
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -324,6 +328,11 @@ class SceneArrays:
         World planes of the flat instances.
     box : ndarray, shape (2, 3)
         The box around every instance: :attr:`Scene.bounds`, the same values.
+    coarse : ndarray, shape (C,), int
+        The instances whose world box float64 resolves to fewer than
+        :data:`MIN_BOX_STEPS` steps across (a part 1e-6 across, 1e10 units out): their
+        origin-relative boxes and plane points are placed from their matrices
+        (:meth:`relative`), not from the world values.
     """
 
     bounds: np.ndarray
@@ -332,6 +341,7 @@ class SceneArrays:
     primitive: np.ndarray
     planes: Planes
     box: np.ndarray
+    coarse: np.ndarray
     # What the entry was read from (checked on reuse), and its origin-relative arrays by origin.
     _source: tuple = field(repr=False)
     _relative: dict = field(default_factory=dict, repr=False)
@@ -352,9 +362,11 @@ class SceneArrays:
         prim = np.fromiter(map(attrgetter("primitive"), insts), np.intp, n)
         planes = instance_planes(scene.primitives, insts, prim)
         box = np.stack([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
+        step = np.spacing(np.abs(bounds).max(axis=(1, 2))) if n else np.zeros(0)
+        coarse = np.flatnonzero(step * MIN_BOX_STEPS > (bounds[:, 1] - bounds[:, 0]).max(axis=1))
         return cls(bounds=_frozen(bounds), cast=_frozen(cast), receive=_frozen(receive),
                    primitive=_frozen(prim), planes=planes, box=_frozen(box),
-                   _source=_source(scene))
+                   coarse=_frozen(coarse), _source=_source(scene))
 
     def patches(self) -> tuple[np.ndarray, np.ndarray]:
         """World unit normals of every instance's flat patches (:func:`primitive_patches`),
@@ -465,13 +477,15 @@ class SceneArrays:
         if hit is not None:
             return hit
         bounds = self.bounds - origin
+        points = self.planes.point - origin
+        if len(self.coarse):
+            self._place_coarse(origin, bounds, points)
         rel = RelativeArrays(
             bounds=_frozen(bounds),
             corners=_frozen(box_corners(bounds)),
             # The mean of two values, computed as ``mean`` does: their sum, halved.
             centres=_frozen((bounds[:, 0] + bounds[:, 1]) / 2),
-            planes=Planes(self.planes.flat, self.planes.normal,
-                          _frozen(self.planes.point - origin)),
+            planes=Planes(self.planes.flat, self.planes.normal, _frozen(points)),
             extent=float(np.max(bounds[:, 1] - bounds[:, 0])),
         )
         with _LOCK:
@@ -479,6 +493,27 @@ class SceneArrays:
                 self._relative.pop(next(iter(self._relative)))
             self._relative[key] = rel
         return rel
+
+
+    def _place_coarse(self, origin: np.ndarray, bounds: np.ndarray, points: np.ndarray) -> None:
+        """The :attr:`coarse` instances' boxes and plane points relative to ``origin``, written
+        into ``bounds`` (N, 2, 3) and ``points`` (N, 3): their local boxes and planes placed by
+        their matrices with the origin taken off the translation first, so that they keep the
+        precision float64 has beside the origin."""
+        from ..scene import world_bounds_many  # the scene module is the planner's input
+
+        instances, primitives = self._source[0], self._source[2]
+        for p in np.unique(self.primitive[self.coarse]).tolist():
+            idx = self.coarse[self.primitive[self.coarse] == p]
+            mats = np.stack([instances[k].matrix for k in idx.tolist()]).astype(np.float64)
+            mats[:, :3, 3] -= origin
+            local = primitives[p].local_bounds.astype(np.float64)
+            bounds[idx] = world_bounds_many(local, mats)
+            flat = idx[self.planes.flat[idx]]
+            plane = primitive_plane(primitives[p]) if len(flat) else None
+            if plane is not None:
+                m = mats[self.planes.flat[idx]]
+                points[flat] = np.matmul(m[:, :3, :3], plane[1][:, None])[..., 0] + m[:, :3, 3]
 
 
 def _source(scene: Scene) -> tuple:
