@@ -4,10 +4,10 @@ The same cases as tests/test_stability.py, run for all five encodings (the tests
 default only) and for the ``depth`` encoding held to 32 bits (``depth_bits: 32``; the ``depth``
 column is ``auto``, which picks 16 bits where the map's depth range allows; each case's name
 says what it picked), plus close views of a part of a vast scene (``testing.part_far_out``),
-plus the large scenes of tests/test_cascades.py (terrain to the horizon, a small box on a
-10,000-unit plane, a city grid from street level; at the origin and 1e6 away) scored by their
-worst band of camera distance. Printed as a Markdown table and written to
-bench/results/stability.md.
+a model a millionth of a unit across far from the world's origin, plus the large scenes of
+tests/test_cascades.py (terrain to the horizon, a small box on a 10,000-unit plane, a city
+grid from street level; at the origin and 1e6 away) scored by their worst band of camera
+distance. Printed as a Markdown table and written to bench/results/stability.md.
 
     python bench/stability.py [--quick]
 """
@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from bench import _common as C
 from bench._common import results_dir
 from shadowmap.renderer import Renderer, RenderParams
 from shadowmap.renderer import testing as T
@@ -88,6 +89,20 @@ def cases(quick: bool):
         out.append((f"close view of a part {far:g} from the rest", T.part_far_out(far),
                     dict(camera={"eye": [far + 2, 3, 3], "target": [far, 0.5, 0]},
                          lights=[{"direction": [-0.3, -1.0, -0.2]}]), "iou"))
+    # A model a millionth of a unit across on its ground, far from the world's origin, seen by
+    # its file's camera (moved with it): 1.83e8 out, where float64 world coordinates step by
+    # 3e-8, a twentieth of it; 9.15e9 out, where they step by 1.9e-6, more than its width, under
+    # a point light 3630 sizes away.
+    duck = C.load_model("Duck.glb")
+    out.append(("Duck 1e-6 units across, 1.83e8 out", T.transformed(duck, 5.05e-7,
+                                                                   (0.0, 1.83e8, 0.47)),
+                dict(lights=[{"direction": [0.2, -1.0, 0.1]}]), "iou"))
+    tiny = T.transformed(duck, 4.363e-7, (9.15e9, 0.0, -1.64))
+    lo, hi = tiny.bounds
+    to_light = np.array([0.523, -0.614, 0.591]) * float(np.linalg.norm(hi - lo)) * 3630
+    out.append(("Duck 7e-7 units across, 9.15e9 out, point light", tiny,
+                dict(lights=[{"type": "point", "position": ((lo + hi) / 2 - to_light).tolist()}]),
+                "iou"))
     out += [
         ("spot cone 179 deg", base, dict(camera=CAMERA, lights=[
             {"type": "spot", "position": [0.5, 2.5, 0.5], "direction": [0, -1, 0],
