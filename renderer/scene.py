@@ -647,9 +647,9 @@ def world_bounds_many(local: np.ndarray, mats: np.ndarray) -> np.ndarray:
 
 
 def world_bounds(local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    corners = np.array(np.meshgrid(*local.T)).reshape(3, -1).T
-    w = corners @ matrix[:3, :3].T + matrix[:3, 3]
-    return np.stack([w.min(axis=0), w.max(axis=0)])
+    """World bounds (2, 3) of a local box (2, 3) under one matrix (4, 4)
+    (:func:`world_bounds_many`)."""
+    return world_bounds_many(local, matrix[None])[0]
 
 
 def load_scene(

@@ -41,9 +41,7 @@ def boxes_in_view(bounds: np.ndarray, camera: Camera, origin: np.ndarray) -> np.
 def view_planes(camera: Camera, origin: np.ndarray) -> np.ndarray:
     """The camera frustum's six unit-normal planes (:func:`.geometry.frustum_planes`), relative
     to ``origin``, shape (6, 4)."""
-    pose = camera.pose.copy()
-    pose[:3, 3] -= origin
-    return frustum_planes(camera.projection @ np.linalg.inv(pose))
+    return frustum_planes(camera.projection @ camera.view_from(origin))
 
 
 # Directions whose most extreme receivers are tried first as witnesses that a plane has a

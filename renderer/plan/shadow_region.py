@@ -588,15 +588,9 @@ def union_rects(rects: np.ndarray, axis: int) -> np.ndarray:
 
 
 def view_projection(camera: Camera, origin: np.ndarray) -> np.ndarray:
-    """The camera's view-projection matrix for origin-relative points, shape (4, 4).
-
-    The pose is made origin-relative before it is inverted: the world view's translation is of
-    the eye's size, and adding the origin back to it afterwards cancels float64 steps of that
-    size (a camera 3e-6 from a part 1.8e8 units out: 3e-8, 1 % of the depth).
-    """
-    pose = np.array(camera.pose, np.float64)
-    pose[:3, 3] -= origin
-    return camera.projection @ np.linalg.inv(pose)
+    """The camera's view-projection matrix for origin-relative points, shape (4, 4)
+    (:meth:`~renderer.camera.Camera.view_from`)."""
+    return camera.projection @ camera.view_from(origin)
 
 
 def lookup_reach(pcf_radius: int, normal_offset: float) -> float:
