@@ -47,7 +47,7 @@ from .limits import (
 from .params import RenderParams
 from .plan import RenderPlan, make_plan
 from .plan.plan import SceneFitPlan, light_bytes
-from .scene import Instance, Scene, is_trimesh, load_scene, scene_from_trimesh
+from .scene import Instance, Scene, gltf_resources, is_trimesh, load_scene, scene_from_trimesh
 
 if TYPE_CHECKING:
     from .gl.resources import GpuScene
@@ -306,7 +306,8 @@ class Renderer:
         file_type : {"glb", "gltf"}, optional
             Taken from the path's suffix, else detected from the content.
         resources : mapping of str to bytes, optional
-            External files of a ``.gltf``.
+            External files of a ``.gltf``; for a path, by default the files it names, read
+            from its folder (:func:`~shadowmap.renderer.scene.gltf_resources`).
 
         Raises
         ------
@@ -324,6 +325,8 @@ class Renderer:
             except OSError as exc:
                 raise SceneError(f"cannot read {source}: {exc.strerror}") from None
             file_type = file_type or Path(source).suffix
+            if resources is None:
+                resources = gltf_resources(source, data, self.limits.max_request_bytes)
         else:
             data = bytes(source)
         key = content_key(data, resources)

@@ -507,21 +507,69 @@ class MappingResolver:
         raise SceneError("the resolver is read-only")
 
 
-def directory_resources(folder: str | Path, max_bytes: int = 512 * 2**20) -> dict[str, bytes]:
-    """Every regular file below ``folder`` as a mapping of relative name -> bytes (for the CLI).
+def gltf_resources(path: str | Path, data: bytes, max_bytes: int | None = None) -> dict[str, bytes]:
+    """The external files a ``.gltf`` names (buffers and images, not ``data:`` URIs), read from
+    its folder: the one way a scene file on disk gets its resources (library, CLI and batch).
 
-    Only files inside ``folder`` are read, so a URI in the scene can never reach outside it.
+    Only what the file refers to is read (a folder of many models is not read whole), and every
+    name goes through :func:`safe_uri`, so nothing outside the folder is opened. A named file
+    that does not exist is left out: the loader then refuses a missing buffer
+    (:class:`SceneError`) and drops a missing image with a warning, as it does for an upload.
+
+    Parameters
+    ----------
+    path : path
+        The ``.gltf`` file (its folder is the root of every relative URI).
+    data : bytes
+        Its content, already read. Not JSON (a GLB): no resources.
+    max_bytes : int, optional
+        Most bytes read in all; a file that would go past it raises :class:`LimitError`
+        (``max_request_bytes``) before it is read.
+
+    Raises
+    ------
+    SceneError
+        A URI that could leave the folder; a named file that exists but cannot be read.
+    LimitError
+        The files named add up to more than ``max_bytes``.
     """
-    root = Path(folder).resolve()
+    import json
+
+    path = Path(path)
+    if data[:4] == b"glTF":
+        return {}
+    try:
+        doc = json.loads(data)
+    except (ValueError, UnicodeDecodeError):
+        return {}  # the loader gives the proper error
     out: dict[str, bytes] = {}
+    if not isinstance(doc, dict):
+        return out
+    root = path.parent
     total = 0
-    for p in sorted(root.rglob("*")):
-        if p.is_file() and not p.is_symlink() and p.suffix.lower() not in (".gltf",):
-            total += p.stat().st_size
-            if total > max_bytes:
-                raise LimitError("max_upload_bytes",
-                                 f"resources under {root} exceed {max_bytes} bytes")
-            out[p.relative_to(root).as_posix()] = p.read_bytes()
+    for kind in ("buffers", "images"):
+        items = doc.get(kind)
+        for i, item in enumerate(items if isinstance(items, list) else []):
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if not isinstance(uri, str) or uri[:5].lower() == "data:":
+                continue
+            name = safe_uri(uri, f"{kind[:-1]} {i}")
+            if name in out:
+                continue
+            file = root / name
+            try:
+                size = file.stat().st_size
+                if max_bytes is not None and total + size > max_bytes:
+                    raise LimitError("max_request_bytes",
+                                     f"the files {path.name} names exceed {max_bytes} bytes "
+                                     f"(at {kind[:-1]} {i}, {name})")
+                out[name] = file.read_bytes()
+            except FileNotFoundError:
+                continue
+            except OSError as exc:
+                raise SceneError(f"{kind[:-1]} {i}: cannot read {name} beside {path.name}: "
+                                 f"{exc.strerror}") from None
+            total += size
     return out
 
 
@@ -665,7 +713,8 @@ def load_scene(
     Parameters
     ----------
     source : path or bytes
-        A ``.glb`` or ``.gltf`` file. Only this file is read from disk; see ``resources``.
+        A ``.glb`` or ``.gltf`` file. A ``.gltf`` given by its path reads the buffers and images
+        it names from its folder (:func:`gltf_resources`) unless ``resources`` is given.
     file_type : str, optional
         ``"glb"``, ``"gltf"`` or a suffix: only a hint for messages. Binary or JSON is decided
         by the content (the magic ``glTF``), so a JSON glTF named ``.glb`` loads.
@@ -705,6 +754,8 @@ def load_scene(
         except OSError as exc:
             raise SceneError(f"cannot read {path}: {exc.strerror}") from None
         file_type = file_type or path.suffix
+        if resources is None:
+            resources = gltf_resources(path, data, limits.max_request_bytes if limits else None)
     else:
         data = bytes(source)
     try:

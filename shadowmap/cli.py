@@ -119,7 +119,6 @@ def _render(args: argparse.Namespace) -> int:
     from .renderer import Renderer, RenderParams, load_scene
     from .renderer.errors import RenderError, ShadowMapError
     from .renderer.exr import exr_available
-    from .renderer.scene import directory_resources
 
     params: dict = {}
     if args.params:
@@ -155,10 +154,7 @@ def _render(args: argparse.Namespace) -> int:
         # Before the render: the files are written after it.
         return _fail("float_format exr needs the OpenEXR package: pip install 'OpenEXR>=3.5'")
     try:
-        resources = None
-        if scene_path.suffix.lower() == ".gltf":
-            resources = directory_resources(scene_path.parent)
-        scene = load_scene(scene_path, resources=resources)
+        scene = load_scene(scene_path)  # a .gltf's files are read from beside it
         if orbit is not None:
             try:
                 bounds = scene.bounds

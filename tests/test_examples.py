@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from shadowmap.renderer import RenderParams, load_scene
-from shadowmap.renderer.scene import directory_resources
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -36,7 +35,7 @@ def test_the_scenes_are_what_make_models_writes(tmp_path):
         assert _same(_geometry(load_scene(EXAMPLES / name)),
                      _geometry(load_scene(tmp_path / name))), name
     folder = EXAMPLES / "demo_gltf"
-    gltf = load_scene(folder / "demo.gltf", resources=directory_resources(folder))
+    gltf = load_scene(folder / "demo.gltf")
     assert _same(_geometry(gltf), _geometry(load_scene(EXAMPLES / "demo.glb")))
     assert {n for n, _ in _geometry(load_scene(EXAMPLES / "objects.glb"))} == {
         "box", "sphere", "pole"}

@@ -387,6 +387,58 @@ def test_external_buffers_come_only_from_resources():
         load_scene(json.dumps(doc).encode(), resources={"tri.bin": blob})
 
 
+def _gltf_on_disk(tmp_path: Path, uri: str = "geometry/tri%20a.bin",
+                  image: str | None = None) -> tuple[Path, bytes]:
+    """A one-triangle ``.gltf`` in ``tmp_path`` whose buffer is the file ``uri`` names."""
+    g = one_triangle()
+    doc, blob = split_glb(g.glb())
+    doc["buffers"][0]["uri"] = uri
+    if image is not None:
+        doc["images"] = [{"uri": image}]
+        doc["textures"] = [{"source": 0}]
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        doc["meshes"][0]["primitives"][0]["material"] = 0
+    path = tmp_path / "scene.gltf"
+    path.write_text(json.dumps(doc))
+    return path, blob
+
+
+def test_gltf_path_reads_the_files_it_names_from_its_folder(tmp_path):
+    from shadowmap.renderer.scene import gltf_resources
+
+    path, blob = _gltf_on_disk(tmp_path)
+    (tmp_path / "geometry").mkdir()
+    (tmp_path / "geometry" / "tri a.bin").write_bytes(blob)  # percent-escaped in the URI
+    (tmp_path / "unrelated.bin").write_bytes(b"\0" * 4096)  # not named: never read
+    assert gltf_resources(path, path.read_bytes()) == {"geometry/tri a.bin": blob}
+    assert load_scene(path).triangle_count == 1
+    # Only what the file names counts against the byte bound, checked before reading.
+    assert load_scene(path, limits=Limits(max_request_bytes=len(blob) + 1024)).triangle_count == 1
+    with pytest.raises(LimitError, match="exceed") as info:
+        gltf_resources(path, path.read_bytes(), max_bytes=len(blob) - 1)
+    assert info.value.limit == "max_request_bytes"
+    # Given resources win over the folder.
+    with pytest.raises(SceneError, match="not provided"):
+        load_scene(path, resources={"other.bin": blob})
+    # A GLB named .gltf has no external files to read.
+    glb = tmp_path / "binary.gltf"
+    glb.write_bytes(one_triangle().glb())
+    assert gltf_resources(glb, glb.read_bytes()) == {}
+
+
+def test_gltf_path_missing_files_are_the_loaders_to_report(tmp_path):
+    path, blob = _gltf_on_disk(tmp_path, uri="tri.bin", image="textures/missing.png")
+    with pytest.raises(SceneError, match="tri.bin"):
+        load_scene(path)  # a buffer is required
+    (tmp_path / "tri.bin").write_bytes(blob)
+    scene = load_scene(path)  # a missing image drops the texture, with a warning
+    assert scene.triangle_count == 1
+    assert any("missing.png" in w for w in scene.warnings), scene.warnings
+    path, _ = _gltf_on_disk(tmp_path, uri="../outside.bin")
+    with pytest.raises(SceneError, match="outside"):
+        load_scene(path)
+
+
 def test_meshopt_views_are_decoded_through_the_extension_module(monkeypatch):
     """The decoder gets the extension's own bytes and fields; its output is the view's data
     when the fallback buffer holds nothing."""

@@ -40,7 +40,7 @@ from shadowmap.renderer import Limits, RenderParams, ShadowMapError
 from shadowmap.renderer.cache import content_key
 from shadowmap.renderer.errors import SceneError
 from shadowmap.renderer.limits import check_request
-from shadowmap.renderer.scene import safe_uri
+from shadowmap.renderer.scene import gltf_resources
 
 from .errors import JobError, error_of
 
@@ -79,8 +79,9 @@ class SceneRef:
         Raises
         ------
         SceneError
-            A missing or unreadable file, a ``.gltf`` that is not JSON, or a URI that leaves the
-            file's folder.
+            A missing or unreadable file, or a URI that leaves the file's folder
+            (:func:`~shadowmap.renderer.scene.gltf_resources`; a file it names that is missing
+            is the loader's to report).
         """
         if self.builtin == "demo":
             from shadowmap.renderer.demo import demo_glb
@@ -111,36 +112,6 @@ class SceneBytes:
     @property
     def nbytes(self) -> int:
         return len(self.data) + sum(len(v) for v in (self.resources or {}).values())
-
-
-def gltf_resources(path: Path, data: bytes) -> dict[str, bytes]:
-    """The files a ``.gltf`` names (buffers and images, not ``data:`` URIs), read from its folder.
-
-    Only what the file refers to is read (a folder of many models is not read whole), and every
-    name goes through the library's :func:`~shadowmap.renderer.scene.safe_uri`, so nothing
-    outside the folder is opened.
-    """
-    try:
-        doc = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{path.name} is not valid JSON: {exc}") from None
-    out: dict[str, bytes] = {}
-    if not isinstance(doc, dict):
-        return out  # the loader gives the proper error
-    root = path.parent
-    for kind in ("buffers", "images"):
-        items = doc.get(kind)
-        for i, item in enumerate(items if isinstance(items, list) else []):
-            uri = item.get("uri") if isinstance(item, dict) else None
-            if not isinstance(uri, str) or uri[:5].lower() == "data:":
-                continue
-            name = safe_uri(uri, f"{kind[:-1]} {i}")
-            try:
-                out[name] = (root / name).read_bytes()
-            except OSError as exc:
-                raise SceneError(f"{kind[:-1]} {i}: cannot read {name} beside {path.name}: "
-                                 f"{exc.strerror}") from None
-    return out
 
 
 @dataclass(frozen=True)
