@@ -149,11 +149,7 @@ def without_shadows(lights: list[dict]) -> list[dict]:
 
 def load_model(name: str, ground: bool = True) -> Scene:
     """A test model by file name, with a ground plane under it by default."""
-    folder = models_dir()
-    resources = None
-    if name.endswith(".gltf"):
-        resources = {p.name: p.read_bytes() for p in folder.iterdir() if p.suffix == ".bin"}
-    scene = load_scene(folder / name, resources=resources)
+    scene = load_scene(models_dir() / name)  # a .gltf's files are read from beside it
     return scene.with_ground() if ground else scene
 
 

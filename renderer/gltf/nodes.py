@@ -91,10 +91,6 @@ class NodeGraph:
     #: that is not a unit quaternion).
     warnings: list[str]
 
-    def scene_nodes(self) -> np.ndarray:
-        """Indices of the nodes of the drawn scene, ascending."""
-        return np.flatnonzero(self.in_scene)
-
 
 #: How far from 1 a rotation quaternion's length may be before its normalization is worth a
 #: warning: float rounding is not, nor the steps of a rotation stored as normalized bytes (at

@@ -13,29 +13,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .geometry import aabbs_in_frustum, frustum_planes, thin_matmul
+from .geometry import frustum_planes, thin_matmul
 
 if TYPE_CHECKING:  # the camera and lights import this package: types only, no import cycle
     from ..camera import Camera
     from ..lights import Light
     from .context import PlanContext
-
-
-def boxes_in_view(bounds: np.ndarray, camera: Camera, origin: np.ndarray) -> np.ndarray:
-    """Which boxes the camera may see (conservative).
-
-    Parameters
-    ----------
-    bounds : ndarray, shape (N, 2, 3)
-        Instance boxes (min, max corner), relative to ``origin``.
-    camera : Camera
-    origin : ndarray, shape (3,)
-
-    Returns
-    -------
-    ndarray, shape (N,), bool
-    """
-    return aabbs_in_frustum(bounds, view_planes(camera, origin), camera.frustum_corners(origin))
 
 
 def view_planes(camera: Camera, origin: np.ndarray) -> np.ndarray:

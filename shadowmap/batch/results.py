@@ -17,7 +17,6 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -119,9 +118,3 @@ def clean_partial(out_dir: Path) -> None:
     """Remove what killed runs left half-written."""
     shutil.rmtree(out_dir / _PARTIAL, ignore_errors=True)
 
-
-def summarize(records: Iterable[dict[str, Any]]) -> dict[str, int]:
-    out = {"ok": 0, "error": 0, "failed": 0}
-    for rec in records:
-        out[rec["status"]] = out.get(rec["status"], 0) + 1
-    return out
