@@ -14,13 +14,14 @@ import math
 import struct
 import time
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import models_dir
-from gltf_files import make_glb, split_glb
+from gltf_files import make_glb, split_glb, transcode_textures
 from shadowmap.renderer import (
     LimitError,
     Limits,
@@ -791,6 +792,80 @@ def test_uvs_far_from_zero_move_by_whole_repeats_and_non_finite_ones_are_said():
     np.testing.assert_array_equal(scene.primitives[0].uv, [[0, 1], [0, 1], [0, 0]])
     (w,) = scene.warnings
     assert "1 texture coordinates (TEXCOORD_0) are not finite in float32" in w, w
+
+
+def _reencode(fmt: str, **options) -> Callable[[bytes], bytes]:
+    from PIL import Image
+
+    def encode(data: bytes) -> bytes:
+        out = io.BytesIO()
+        with Image.open(io.BytesIO(data)) as im:
+            im.convert("RGBA").save(out, fmt, **options)
+        return out.getvalue()
+    return encode
+
+
+def _textures(scene: Scene) -> list[np.ndarray]:
+    return [p.material.texture for p in scene.primitives if p.material.texture is not None]
+
+
+@pytest.mark.parametrize("extension, fmt, options, tolerance", [
+    ("EXT_texture_webp", "WEBP", {"lossless": True, "exact": True}, 0),
+    ("EXT_texture_avif", "AVIF", {"quality": 90}, 8),
+])
+def test_webp_and_avif_textures_load_as_gltf_transform_writes_them(models, extension, fmt,
+                                                                  options, tolerance):
+    """A model whose textures are re-encoded and named only by the extension (required, no
+    fallback source: gltf-transform's webp and avif commands) loads the same textures: equal
+    for lossless WebP, within AVIF's rounding. The cut-out model, where they shape shadows."""
+    glb = (models / "AlphaBlendModeTest.glb").read_bytes()
+    original = load_scene(glb)
+    moved = load_scene(transcode_textures(glb, extension, _reencode(fmt, **options)))
+    assert moved.warnings == original.warnings == []
+    ours, theirs = _textures(moved), _textures(original)
+    assert len(ours) == len(theirs) == 9
+    for a, b in zip(ours, theirs, strict=True):
+        assert a.shape == b.shape
+        assert np.abs(a.astype(int) - b.astype(int)).mean() <= tolerance
+        if tolerance == 0:
+            np.testing.assert_array_equal(a, b)
+
+
+def test_texture_extension_image_first_then_its_fallback_source():
+    def rgba(value: int) -> bytes:
+        return png(np.full((2, 2, 4), value, np.uint8))
+
+    g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}, UV0,
+                  image=rgba(10))  # image 0, the plain source
+    webp = _reencode("WEBP", lossless=True)(rgba(200))
+    g.doc["images"].append({"bufferView": g.view(webp), "mimeType": "image/webp"})
+    g.doc["textures"][0]["extensions"] = {"EXT_texture_webp": {"source": 1}}
+    g.doc["extensionsUsed"] = ["EXT_texture_webp"]
+    scene = g.load()
+    assert scene.warnings == []
+    assert _textures(scene)[0][0, 0, 0] == 200  # the extension's image
+    # An extension image that does not decode: the fallback, with a warning naming both.
+    g.doc["images"][1]["bufferView"] = g.view(b"RIFF not a webp")
+    scene = g.load()
+    assert _textures(scene)[0][0, 0, 0] == 10
+    (w,) = scene.warnings
+    assert w.startswith("image 1 (EXT_texture_webp) of material 0 ('leaf'): cannot be decoded")
+    assert w.endswith("image 0 ('cutout') is used instead"), w
+    # Neither decodes: dropped, both named.
+    g.doc["images"][0] = {"bufferView": g.view(b"not a png either"), "mimeType": "image/png"}
+    scene = g.load()
+    assert _textures(scene) == []
+    (w,) = scene.warnings
+    assert "image 1 (EXT_texture_webp)" in w and "image 0 of material 0" in w
+    assert w.endswith("the texture is dropped and the base colour factor is used"), w
+
+
+def test_ktx2_textures_stay_refused_when_required():
+    g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}, UV0)
+    g.doc["textures"][0] = {"extensions": {"KHR_texture_basisu": {"source": 0}}}
+    g.doc["extensionsUsed"] = g.doc["extensionsRequired"] = ["KHR_texture_basisu"]
+    with pytest.raises(UnsupportedExtension, match="KHR_texture_basisu"):
+        g.load()
 
 
 def test_texture_without_its_uv_set_draws_untextured():

@@ -27,13 +27,13 @@ import numpy.typing as npt
 
 from ..errors import LimitError, SceneError
 from ..scene import Material, safe_uri
-from .extensions import specular_glossiness, texture_transform
+from .extensions import specular_glossiness, texture_sources, texture_transform
 from .reader import Buffers, Resolver, brief, extension, get_list, is_data_uri, load_uri
 
 #: Largest texture decoded (pixels): 64 Mpixel, like PIL's ``Image.MAX_IMAGE_PIXELS`` guard.
 MAX_TEXTURE_PIXELS = 64 * 2**20
-#: Image formats decoded: glTF's PNG and JPEG, and WebP (EXT_texture_webp's format).
-IMAGE_FORMATS = ("PNG", "JPEG", "WEBP")
+#: Image formats decoded: glTF's PNG and JPEG, WebP (EXT_texture_webp) and AVIF (EXT_texture_avif).
+IMAGE_FORMATS = ("PNG", "JPEG", "WEBP", "AVIF")
 REPEAT = 10497
 WRAP_NAMES = {33071: "CLAMP_TO_EDGE", 33648: "MIRRORED_REPEAT", REPEAT: "REPEAT"}
 ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
@@ -253,19 +253,28 @@ class Materials:
             return None, tex_coord, transform, None
         tspec = self.textures[tex]
         tspec = tspec if isinstance(tspec, dict) else {}
-        source = tspec.get("source")
-        if isinstance(source, bool) or not isinstance(source, int) or not (
-                0 <= source < len(self.images)):
+        sources = [(s, by) for s, by in texture_sources.candidates(tspec)
+                   if not isinstance(s, bool) and isinstance(s, int) and 0 <= s < len(self.images)]
+        if not sources:
             self.warnings.append(f"{label}: texture {tex} has no image source this loader reads"
                                  ": dropped, the base colour factor is used")
             return None, tex_coord, transform, None
-        image = self._image(source)
-        if isinstance(image, str):
-            self.warnings.append(f"{_label('image', source, self.images[source])} of {label}: "
-                                 f"{image}; the texture is dropped and the base colour factor "
-                                 "is used")
-            return None, tex_coord, transform, None
-        return image, tex_coord, transform, self._wrap(tspec)
+        # The first image that decodes (an extension's WebP or AVIF, then the plain source);
+        # one that does not is named, with what stood in for it.
+        failed: list[str] = []
+        for source, by in sources:
+            image = self._image(source)
+            what = _label("image", source, self.images[source])
+            if by != "source":
+                what += f" ({by})"
+            if not isinstance(image, str):
+                if failed:
+                    self.warnings.append(f"{'; '.join(failed)}; {what} is used instead")
+                return image, tex_coord, transform, self._wrap(tspec)
+            failed.append(f"{what} of {label}: {image}")
+        self.warnings.append(f"{'; '.join(failed)}; the texture is dropped and the base colour "
+                             "factor is used")
+        return None, tex_coord, transform, None
 
     def _wrap(self, tspec: dict[str, Any]) -> str | None:
         sampler = tspec.get("sampler")

@@ -6,17 +6,18 @@
 ``extensionsUsed`` are ignored with a warning in ``Scene.warnings``. Each implemented extension
 with code of its own has a module here named after it: ``draco`` (KHR_draco_mesh_compression),
 ``meshopt`` (EXT_meshopt_compression), ``gpu_instancing``, ``texture_transform``,
-``lights_punctual``, ``specular_glossiness``; ``KHR_mesh_quantization`` is the set of component
-types the accessor checks allow (``mesh_quantization``).
+``lights_punctual``, ``specular_glossiness``, ``texture_sources`` (EXT_texture_webp and
+EXT_texture_avif); ``KHR_mesh_quantization`` is the set of component types the accessor checks
+allow (``mesh_quantization``).
 
 :data:`IGNORED` lists extensions accepted and ignored: each only changes shading terms this
 renderer does not have (its model is base colour x (ambient + visibility x (diffuse +
 specular)), with its own specular term), so leaving it out cannot change geometry, alpha
 cut-outs or shadows. Not among them, on purpose: ``KHR_materials_transmission`` and
 ``KHR_materials_volume`` (light passes through, so shadows would be lighter),
-``KHR_materials_unlit`` (an unlit surface shows no shadow), ``KHR_texture_basisu`` and
-``EXT_texture_webp`` (the base-colour texture, hence its cut-outs, could be lost),
-``EXT_meshopt_compression``-like codecs other than the two implemented, and
+``KHR_materials_unlit`` (an unlit surface shows no shadow), ``KHR_texture_basisu`` (KTX2
+textures, which no decoder here reads: the base-colour texture, hence its cut-outs, would be
+lost), ``EXT_meshopt_compression``-like codecs other than the two implemented, and
 ``KHR_materials_pbrSpecularGlossiness`` beyond its diffuse colour (listed, partial).
 """
 
@@ -37,6 +38,8 @@ IMPLEMENTED: dict[str, str] = {
     "KHR_lights_punctual": "directional, point and spot lights",
     "KHR_materials_pbrSpecularGlossiness": "base colour only: diffuseFactor and diffuseTexture "
                                            "when the material has no pbrMetallicRoughness",
+    "EXT_texture_webp": "WebP textures, read before the texture's plain source (its fallback)",
+    "EXT_texture_avif": "AVIF textures, read before the texture's plain source (its fallback)",
 }
 
 #: Extensions accepted and ignored: their absence changes no geometry, cut-out or shadow.
