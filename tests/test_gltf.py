@@ -1105,6 +1105,41 @@ def test_cameras_and_lights_with_their_node_transforms():
     assert any("camera 9 does not exist" in w for w in scene.warnings)
 
 
+def test_node_visibility_hides_subtrees_but_not_cameras():
+    """KHR_node_visibility: ``visible: false`` hides the node and everything below it, even a
+    child that says ``true``: no mesh, no light; its camera stays. The plain nodes around it
+    are drawn as before."""
+    def vis(value):
+        return {"KHR_node_visibility": {"visible": value}}
+
+    g = Gltf()
+    g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}]
+    g.doc["extensionsUsed"] = ["KHR_node_visibility", "KHR_lights_punctual"]
+    g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "point"}]}}
+    tri = g.triangle()
+    g.node(mesh=tri, name="shown")                                          # 0
+    g.node(mesh=tri, children=[2, 3], extensions=vis(False), name="hidden")  # 1
+    g.node(root=False, mesh=tri, extensions=vis(True), name="under")        # 2
+    g.node(root=False, camera=0,
+           extensions={**vis(True), "KHR_lights_punctual": {"light": 0}})   # 3
+    g.node(mesh=tri, translation=[0, 0, 1], extensions=vis(True))           # 4
+    scene = g.load()
+    assert scene.warnings == []
+    assert sorted(inst.name for inst in scene.instances) == ["node_4", "shown"]
+    assert len(scene.cameras) == 1 and scene.lights == []
+    # Everything hidden: nothing to draw, said as such.
+    g.doc["nodes"][0]["extensions"] = vis(False)
+    g.doc["nodes"][4]["extensions"] = vis(False)
+    with pytest.raises(SceneError, match="no triangles to render"):
+        g.load()
+    # Not a boolean: drawn, with a warning.
+    g.doc["nodes"][0]["extensions"] = vis("no")
+    scene = g.load()
+    assert [inst.name for inst in scene.instances] == ["shown"]
+    assert scene.warnings == ["node 'shown': KHR_node_visibility visible 'no' is not a boolean: "
+                              "the node is drawn"]
+
+
 def test_a_light_reference_without_a_light_is_said():
     g = one_triangle()
     g.doc["extensionsUsed"] = ["KHR_lights_punctual"]

@@ -173,7 +173,7 @@ class _Loader:
 
     def _instances(self) -> list[Instance]:
         g = self.graph
-        nodes = np.flatnonzero(g.in_scene & (g.mesh >= 0))
+        nodes = np.flatnonzero(g.in_scene & g.visible & (g.mesh >= 0))
         mesh_cast = np.full(len(self.meshes), -1, np.int8)
         mesh_receive = np.full(len(self.meshes), -1, np.int8)
         for m in np.unique(g.mesh[nodes]):
@@ -626,7 +626,8 @@ class _Loader:
         centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2
         for i in candidates.tolist():
             node = g.nodes[i]
-            has_light = lights_punctual.names_extension(node)
+            # A hidden node's light does not shine; its camera is still one (KHR_node_visibility).
+            has_light = lights_punctual.names_extension(node) and bool(g.visible[i])
             if g.camera[i] == INVALID:
                 self.warnings.append(f"node {g.names[i]!r}: camera {brief(node.get('camera'))} "
                                      "does not exist: left out")

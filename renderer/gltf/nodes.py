@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError
+from .extensions import node_visibility
 from .reader import brief, get_index, get_list
 
 #: ``NodeGraph.camera`` of a node whose camera index is out of range.
@@ -66,6 +67,9 @@ class NodeGraph:
         Nodes in breadth-first order from the roots (parents before children).
     in_scene : ndarray, shape (N,), bool
         The node belongs to the scene drawn (the default scene, or all roots when none is set).
+    visible : ndarray, shape (N,), bool
+        Neither the node nor a node above it says ``visible: false`` (KHR_node_visibility):
+        its mesh and light are drawn.
     """
 
     nodes: list[dict[str, Any]]
@@ -74,6 +78,7 @@ class NodeGraph:
     parent: np.ndarray
     order: np.ndarray
     in_scene: np.ndarray
+    visible: np.ndarray
     #: What each node references, -1 for nothing: ``mesh``, ``skin``, ``camera`` (validated
     #: indices; :data:`INVALID` for a camera index that is not one), read in the same single
     #: pass over the nodes as the transforms.
@@ -221,7 +226,12 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
                     flags[i] = extras[key]
     special = np.zeros(n, bool)
     special[field("weights")[0]] = True
-    special[[i for i, e in zip(*field("extensions"), strict=True) if e]] = True
+    special[[i for i, e in zip(*field("extensions"), strict=True)
+             if e and not node_visibility.only_extension(e)]] = True
+    hidden_warnings: list[str] = []
+    hides = np.zeros(n, bool)
+    hides[[i for i in field("extensions")[0]
+           if node_visibility.hides(nodes[i], hidden_warnings, f"node {names[i]!r}")]] = True
 
     parent = np.full(n, -1, np.int64)
     children: list[list[int]] = [[] for _ in range(n)]
@@ -272,6 +282,7 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     # Level by level from the roots: each level's world matrices in one batched product.
     world = np.empty_like(local)
     in_scene = np.zeros(n, bool)
+    visible = ~hides
     level = np.flatnonzero(parent == -1)
     world[level] = local[level]
     in_scene[level] = listed[level]
@@ -283,6 +294,7 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
             with np.errstate(over="ignore", invalid="ignore"):  # refused where drawn
                 world[nxt] = world[parent[nxt]] @ local[nxt]
             in_scene[nxt] = in_scene[parent[nxt]] | listed[nxt]
+            visible[nxt] &= visible[parent[nxt]]
             order.append(nxt)
             seen += len(nxt)
         level = nxt
@@ -300,6 +312,7 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     warnings += [f"node {names[i]!r}: its rotation has length {length[i]:.3g}, not 1; "
                  + ("normalized" if length[i] > 0 else "no rotation is used")
                  for i in np.flatnonzero(off_unit & in_scene & ~with_matrix).tolist()]
-    return NodeGraph(nodes, local, world, parent, np.concatenate(order), in_scene,
+    warnings += hidden_warnings
+    return NodeGraph(nodes, local, world, parent, np.concatenate(order), in_scene, visible,
                      refs["mesh"], refs["skin"], refs["camera"], cast, receive, special, names,
                      warnings)
