@@ -544,6 +544,41 @@ def test_primitive_restart_value_drops_the_primitive():
     assert any("mesh 0 primitive 0" in w and "primitive-restart" in w for w in scene.warnings)
 
 
+@pytest.mark.parametrize("mode", [5, 6])
+def test_primitive_restart_cuts_strips_and_fans_where_declared(mode):
+    """KHR_mesh_primitive_restart: a strip or fan holding restart values draws the same
+    triangles as its pieces drawn as primitives of their own (each piece's strip alternation
+    and fan centre starting again); without the declaration the primitive is dropped, and a
+    triangle list may never hold the value."""
+    rng = np.random.default_rng(3)
+    pos = rng.normal(size=(9, 3)).astype(np.float32)
+    pieces = [np.array([0, 1, 2, 3, 4]), np.array([5, 6, 7, 8])]
+    joined = np.concatenate([pieces[0], [0xFFFF], pieces[1], [0xFFFF]])
+
+    def scene(declare: bool, *index_lists: np.ndarray, prim_mode: int = mode) -> Scene:
+        g = Gltf()
+        p = g.accessor(pos)
+        g.node(mesh=g.mesh(*[{"attributes": {"POSITION": p}, "mode": prim_mode,
+                              "indices": g.accessor(ix, ctype=USHORT)} for ix in index_lists]))
+        if declare:
+            g.doc["extensionsUsed"] = ["KHR_mesh_primitive_restart"]
+        return g.load()
+
+    def world_triangles(sc: Scene) -> np.ndarray:
+        tris = np.concatenate([p.positions[p.indices] for p in sc.primitives])
+        return _sorted_rows(tris)
+
+    cut = scene(True, joined)
+    assert cut.warnings == []
+    np.testing.assert_array_equal(world_triangles(cut), world_triangles(scene(False, *pieces)))
+    assert cut.triangle_count == 3 + 2
+    with pytest.raises(SceneError, match="primitive-restart value 65535"):
+        scene(False, joined)
+    listed = scene(True, np.array([0, 1, 2, 0xFFFF, 3, 4]), np.array([5, 6, 7]), prim_mode=4)
+    assert listed.triangle_count == 1
+    assert any("primitive-restart value 65535" in w for w in listed.warnings)
+
+
 def test_primitive_without_position_is_skipped():
     g = Gltf()
     g.node(mesh=g.mesh({"attributes": {"NORMAL": g.accessor(TRI)}},

@@ -30,7 +30,13 @@ from ..scene import (
 from . import morph, skin
 from .accessors import UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, check_type
 from .admission import admit
-from .extensions import check_extensions, gpu_instancing, lights_punctual, mesh_quantization
+from .extensions import (
+    check_extensions,
+    gpu_instancing,
+    lights_punctual,
+    mesh_quantization,
+    primitive_restart,
+)
 from .extensions import texture_transform as tt
 from .materials import Materials, MaterialUse, clamp_colour
 from .nodes import INVALID, NodeGraph, build_graph
@@ -141,6 +147,7 @@ class _Loader:
                          if isinstance(required, list) else set())
         self.graph: NodeGraph = build_graph(self.doc)
         self.warnings += self.graph.warnings
+        self.restarts = primitive_restart.declared(self.doc)
         self.meshes = get_list(self.doc, "meshes")
         self.skins = get_list(self.doc, "skins")
         self.buffers = Buffers(document, resolver)
@@ -355,19 +362,25 @@ class _Loader:
             restart = RESTART[info.component_type]
         else:
             indices, restart = np.arange(n, dtype=np.int64), None
+        # Restart values cut strips and fans where the file declares KHR_mesh_primitive_restart;
+        # anywhere else glTF forbids them.
+        cuts = restart if restart is not None and mode != TRIANGLES and self.restarts else None
         if len(indices):
-            if restart is not None and int(indices.max()) == restart:
+            top = int(indices.max())
+            if top == restart and cuts is not None:
+                drawn = indices[indices != restart]
+                top = int(drawn.max()) if len(drawn) else -1
+            elif restart is not None and top == restart:
                 self._drop(what, f"its indices hold the primitive-restart value {restart}: "
                            "left out")
                 return None
-            if int(indices.max()) >= n:
-                self._drop(what, f"index {int(indices.max())} is out of range for {n} vertices:"
-                           " left out")
+            if top >= n:
+                self._drop(what, f"index {top} is out of range for {n} vertices: left out")
                 return None
         if mode == TRIANGLES and len(indices) % 3:
             self.warnings.append(f"{what}: {len(indices)} indices is not a multiple of 3; the "
                                  "last partial triangle is left out")
-        faces = triangulate(indices, mode)
+        faces = triangulate(indices, mode, cuts)
         if len(faces) == 0:
             self._drop(what, "no triangles: left out")
             return None

@@ -25,7 +25,7 @@ def triangle_count(mode: int, count: int) -> int:
     return 0
 
 
-def triangulate(indices: np.ndarray, mode: int) -> np.ndarray:
+def triangulate(indices: np.ndarray, mode: int, restart: int | None = None) -> np.ndarray:
     """One triangle list from a list, strip or fan, keeping glTF's winding.
 
     Strips alternate (glTF 2.0 3.7.2.1: triangle i is (v_i, v_{i+1+i%2}, v_{i+2-i%2}), so every
@@ -36,6 +36,10 @@ def triangulate(indices: np.ndarray, mode: int) -> np.ndarray:
     ----------
     indices : ndarray, shape (K,), integer
     mode : {4, 5, 6}
+    restart : int, optional
+        For a strip or a fan: the primitive-restart value (KHR_mesh_primitive_restart), which
+        ends one strip or fan and starts the next; each is triangulated as if alone (a strip's
+        alternation and a fan's centre start again).
 
     Returns
     -------
@@ -45,11 +49,21 @@ def triangulate(indices: np.ndarray, mode: int) -> np.ndarray:
     if mode == TRIANGLES:
         f = len(idx) // 3
         return idx[: f * 3].reshape(f, 3)
+    if mode not in (TRIANGLE_STRIP, TRIANGLE_FAN):
+        raise ValueError(f"mode {mode} is not a triangle mode")
     f = max(len(idx) - 2, 0)
     i = np.arange(f)
+    cut = idx == restart if restart is not None else np.zeros(len(idx), bool)
+    # Each index's segment (restarts counted before it) and the segment's first position.
+    segment = np.cumsum(cut)
+    first = np.concatenate([[0], np.flatnonzero(cut) + 1])[segment]
+    # A triangle's three positions lie in one segment when no restart is among them.
     if mode == TRIANGLE_STRIP:
-        odd = i % 2
-        return np.stack([idx[i], idx[i + 1 + odd], idx[i + 2 - odd]], axis=1)
-    if mode == TRIANGLE_FAN:
-        return np.stack([idx[i + 1], idx[i + 2], np.full(f, idx[0] if f else 0)], axis=1)
-    raise ValueError(f"mode {mode} is not a triangle mode")
+        whole = ~(cut[i] | cut[i + 1] | cut[i + 2])
+        odd = (i - first[i]) % 2
+        return np.stack([idx[i], idx[i + 1 + odd], idx[i + 2 - odd]], axis=1)[whole]
+    # Fan: the triangle at i is (v_{i+1}, v_{i+2}, v_first) of the segment holding i + 1, when
+    # i + 1 is not the segment's first (the centre) and i + 2 still belongs to it.
+    j = i + 1
+    keep = ~(cut[j] | cut[j + 1]) & (j > first[j])
+    return np.stack([idx[j], idx[j + 1], idx[first[j]]], axis=1)[keep]

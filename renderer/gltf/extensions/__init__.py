@@ -7,8 +7,8 @@
 with code of its own has a module here named after it: ``draco`` (KHR_draco_mesh_compression),
 ``meshopt`` (EXT_meshopt_compression), ``gpu_instancing``, ``texture_transform``,
 ``lights_punctual``, ``specular_glossiness``, ``texture_sources`` (EXT_texture_webp and
-EXT_texture_avif), ``node_visibility``; ``KHR_mesh_quantization`` is the set of component types
-the accessor checks allow (``mesh_quantization``).
+EXT_texture_avif), ``node_visibility``, ``primitive_restart``; ``KHR_mesh_quantization`` is the
+set of component types the accessor checks allow (``mesh_quantization``).
 
 :data:`IGNORED` lists extensions accepted and ignored: each only changes shading terms this
 renderer does not have (its model is base colour x (ambient + visibility x (diffuse +
@@ -38,6 +38,8 @@ IMPLEMENTED: dict[str, str] = {
     "KHR_lights_punctual": "directional, point and spot lights",
     "KHR_materials_pbrSpecularGlossiness": "base colour only: diffuseFactor and diffuseTexture "
                                            "when the material has no pbrMetallicRoughness",
+    "KHR_mesh_primitive_restart": "restart values in strip and fan indices start a new strip "
+                                  "or fan",
     "KHR_node_visibility": "visible: false hides a node's subtree (meshes and lights; cameras "
                            "stay)",
     "EXT_texture_webp": "WebP textures, read before the texture's plain source (its fallback)",
@@ -56,6 +58,8 @@ IGNORED: dict[str, str] = {
     "KHR_materials_dispersion": "ignored: dispersion of light refracted by transmission "
                                 "(itself not drawn, and warned about)",
     "KHR_materials_variants": "ignored: alternative materials; the default mapping is drawn",
+    "EXT_mesh_primitive_restart": "ignored: groups of primitives to draw as one with restart "
+                                  "values; the primitives themselves are drawn",
     "KHR_animation_pointer": "ignored: animations are not played",
     "KHR_xmp_json_ld": "ignored: metadata",
     "EXT_mesh_features": "ignored: feature IDs of vertices and texels (metadata)",
