@@ -34,7 +34,9 @@ from shadowmap.renderer.gltf.extensions import IGNORED, SUPPORTED
 from shadowmap.renderer.scene import MappingResolver, Scene
 
 FLOAT, UBYTE, BYTE, USHORT, SHORT, UINT = 5126, 5121, 5120, 5123, 5122, 5125
-DTYPES = {FLOAT: "<f4", UBYTE: "<u1", BYTE: "<i1", USHORT: "<u2", SHORT: "<i2", UINT: "<u4"}
+DOUBLE = 5130  # KHR_accessor_float64
+DTYPES = {FLOAT: "<f4", UBYTE: "<u1", BYTE: "<i1", USHORT: "<u2", SHORT: "<i2", UINT: "<u4",
+          DOUBLE: "<f8"}
 KINDS = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4", 16: "MAT4"}
 TRI = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
 
@@ -577,6 +579,36 @@ def test_primitive_restart_cuts_strips_and_fans_where_declared(mode):
     listed = scene(True, np.array([0, 1, 2, 0xFFFF, 3, 4]), np.array([5, 6, 7]), prim_mode=4)
     assert listed.triangle_count == 1
     assert any("primitive-restart value 65535" in w for w in listed.warnings)
+
+
+def test_float64_positions_keep_their_precision_far_out():
+    """KHR_accessor_float64: a millimetre triangle 6,378,137 m out (float32's step there is
+    0.5 m) in float64 positions lands where the file puts it, to float64's precision: stored as
+    float32 offsets from its centre, the centre in the instance's matrix. The same accessor in a
+    file that does not declare the extension is refused, naming it."""
+    far = np.array([6378137.0, 1234.5, -4321.25])
+    tri = far + np.array([[0, 0, 0], [1e-3, 0, 0], [0, 1e-3, 0]])
+    g = Gltf()
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(tri, ctype=DOUBLE)}}))
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(tri, ctype=DOUBLE),
+                                       "NORMAL": g.accessor(np.tile([0.0, 0, 1], (3, 1)),
+                                                            ctype=DOUBLE)}}),
+           translation=[-6378137.0, 0, 0])
+    g.doc["extensionsUsed"] = g.doc["extensionsRequired"] = ["KHR_accessor_float64"]
+    scene = g.load()
+    assert scene.warnings == []
+    first, moved = scene.instances
+    got = scene.world_triangles(first, far).reshape(3, 3) + far
+    np.testing.assert_allclose(got, tri, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(scene.world_triangles(moved).reshape(3, 3),
+                               tri - [6378137.0, 0, 0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(scene.primitives[1].normals, np.tile([0, 0, 1], (3, 1)))
+    np.testing.assert_allclose(scene.bounds, [tri.min(axis=0) - [6378137.0, 0, 0],
+                                              tri.max(axis=0)], rtol=0, atol=1e-9)
+    del g.doc["extensionsUsed"], g.doc["extensionsRequired"]
+    with pytest.raises(SceneError, match="componentType 5130 .DOUBLE. needs "
+                                         "KHR_accessor_float64"):
+        g.load()
 
 
 def test_primitive_without_position_is_skipped():

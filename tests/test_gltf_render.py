@@ -8,7 +8,7 @@ import pytest
 
 from shadowmap.renderer import RenderParams, load_scene
 from shadowmap.renderer import testing as T
-from test_gltf import USHORT, Gltf, png
+from test_gltf import DOUBLE, USHORT, Gltf, png
 
 pytestmark = pytest.mark.gl
 
@@ -61,6 +61,46 @@ def test_fans_draw_and_cast_like_the_same_triangles(renderer, indexed):
     shadowed = fan.visibility[..., 0] < 0.5
     assert shadowed.sum() > 200  # the hexagon's shadow on the ground
     np.testing.assert_array_equal(fan.visibility, plain.visibility)
+
+
+#: An offset like Earth-centred coordinates in metres: float32's step there is 0.5 units along
+#: x and z, and the hexagon is 2 across (its z coordinates, +-0.866, would round to +-1 or +-0.5).
+EARTH = np.array([4510731.0, 0.0, 4487348.0])
+
+
+def _far(float64: bool) -> bytes:
+    """The hexagon over its ground, EARTH units out: as float64 positions there
+    (KHR_accessor_float64), or as float32 positions at the origin under node translations."""
+    g = Gltf()
+    tris = np.array([[FAN[0], FAN[i], FAN[i + 1]] for i in range(1, len(FAN) - 1)]).reshape(-1)
+    ground_ix = np.array([0, 1, 2, 0, 2, 3], np.uint16)
+    move = {} if float64 else {"translation": EARTH.tolist()}
+    for pos, ix in ((HEXAGON, tris.astype(np.uint16)), (GROUND, ground_ix)):
+        if float64:
+            acc = g.accessor(pos.astype(np.float64) + EARTH, ctype=DOUBLE)
+        else:
+            acc = g.accessor(pos)
+        g.node(mesh=g.mesh({"attributes": {"POSITION": acc},
+                            "indices": g.accessor(ix, ctype=USHORT)}), **move)
+    if float64:
+        g.doc["extensionsUsed"] = g.doc["extensionsRequired"] = ["KHR_accessor_float64"]
+    return g.glb()
+
+
+def test_float64_positions_far_out_render_like_a_translated_scene(renderer):
+    """KHR_accessor_float64 positions 6.4e6 units out draw and shadow as the same scene at the
+    origin placed there by its nodes' (float64) translations: the loader keeps float64
+    positions relative to each primitive's centre."""
+    view = dict(VIEW, camera={"eye": (EARTH + [0.5, 6, 0.8]).tolist(),
+                              "target": EARTH.tolist()})
+    params = RenderParams.model_validate(view)
+    far = renderer.render(load_scene(_far(True)), params)
+    moved = renderer.render(load_scene(_far(False)), params)
+    shadowed = moved.visibility[..., 0] < 0.5
+    assert shadowed.sum() > 200
+    np.testing.assert_array_equal(np.isfinite(far.depth), np.isfinite(moved.depth))
+    np.testing.assert_allclose(far.depth, moved.depth, rtol=1e-5)
+    assert np.count_nonzero((far.visibility[..., 0] < 0.5) != shadowed) <= 2
 
 
 def _cut_out_quad(cutoff: float | None) -> bytes:

@@ -15,9 +15,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError, UnsupportedExtension
+from .extensions import accessor_float64
 from .reader import Buffers, brief, get_index, get_int, get_list
 
 BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT, UNSIGNED_INT, FLOAT = 5120, 5121, 5122, 5123, 5125, 5126
+#: KHR_accessor_float64's float64 component type (only in documents that declare it).
+DOUBLE = accessor_float64.DOUBLE
 
 #: componentType -> little-endian numpy dtype.
 COMPONENT_DTYPES: dict[int, np.dtype[Any]] = {
@@ -27,9 +30,11 @@ COMPONENT_DTYPES: dict[int, np.dtype[Any]] = {
     UNSIGNED_SHORT: np.dtype("<u2"),
     UNSIGNED_INT: np.dtype("<u4"),
     FLOAT: np.dtype("<f4"),
+    DOUBLE: np.dtype("<f8"),
 }
 COMPONENT_NAMES = {BYTE: "BYTE", UNSIGNED_BYTE: "UNSIGNED_BYTE", SHORT: "SHORT",
-                   UNSIGNED_SHORT: "UNSIGNED_SHORT", UNSIGNED_INT: "UNSIGNED_INT", FLOAT: "FLOAT"}
+                   UNSIGNED_SHORT: "UNSIGNED_SHORT", UNSIGNED_INT: "UNSIGNED_INT", FLOAT: "FLOAT",
+                   DOUBLE: "DOUBLE"}
 #: type -> (rows, columns): vectors are columns of one, matrices square.
 TYPE_SHAPES = {"SCALAR": (1, 1), "VEC2": (2, 1), "VEC3": (3, 1), "VEC4": (4, 1),
                "MAT2": (2, 2), "MAT3": (3, 3), "MAT4": (4, 4)}
@@ -37,8 +42,9 @@ TYPE_SHAPES = {"SCALAR": (1, 1), "VEC2": (2, 1), "VEC3": (3, 1), "VEC4": (4, 1),
 #: bytes: a few bytes of JSON must not claim gigabytes.
 MAX_ACCESSOR_BYTES = 256 * 2**20
 
-# Component sets by use, as (componentType, normalized) pairs.
-FLOAT_ONLY = frozenset({(FLOAT, False)})
+# Component sets by use, as (componentType, normalized) pairs. Float64 goes wherever float32
+# does (KHR_accessor_float64; Accessors.info refuses it in documents that do not declare it).
+FLOAT_ONLY = frozenset({(FLOAT, False), (DOUBLE, False)})
 NORMALIZED_INTS = frozenset({(t, True) for t in (BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT)})
 PLAIN_INTS = frozenset({(t, False) for t in (BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT)})
 #: Every float or 8/16-bit integer form (KHR_mesh_quantization's widest sets).
@@ -128,6 +134,7 @@ class Accessors:
         self.buffers = buffers
         self.specs = get_list(buffers.doc, "accessors")
         self._cache: dict[int, np.ndarray] = {}
+        self.float64 = accessor_float64.declared(buffers.doc)
 
     def __len__(self) -> int:
         return len(self.specs)
@@ -141,6 +148,9 @@ class Accessors:
         ctype = spec.get("componentType")
         if not isinstance(ctype, int) or ctype not in COMPONENT_DTYPES:
             raise SceneError(f"{what}: componentType {ctype!r} is not a glTF 2.0 component type")
+        if ctype == DOUBLE and not self.float64:
+            raise SceneError(f"{what}: componentType {DOUBLE} (DOUBLE) needs "
+                             f"{accessor_float64.EXTENSION}, which the file does not declare")
         kind = spec.get("type")
         if not isinstance(kind, str) or kind not in TYPE_SHAPES:
             raise SceneError(f"{what}: type {kind!r} is not a glTF 2.0 accessor type")
@@ -149,7 +159,7 @@ class Accessors:
         if not isinstance(normalized, bool):
             raise SceneError(f"{what}: normalized must be true or false, not "
                              f"{brief(normalized)}")
-        if normalized and ctype in (FLOAT, UNSIGNED_INT):
+        if normalized and ctype in (FLOAT, DOUBLE, UNSIGNED_INT):
             raise SceneError(f"{what}: normalized must be false for {COMPONENT_NAMES[ctype]}")
         return AccessorInfo(index, ctype, kind, count, normalized)
 

@@ -28,7 +28,7 @@ from ..scene import (
     world_bounds_many,
 )
 from . import morph, skin
-from .accessors import UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, check_type
+from .accessors import DOUBLE, UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, Accessors, check_type
 from .admission import admit
 from .extensions import (
     check_extensions,
@@ -159,6 +159,10 @@ class _Loader:
         self._uses: dict[_UseKey, list[int | None]] = {}
         self._left_out: list[str] = []
         self.arrays: dict[str, np.ndarray] = {}
+        # Primitives stored relative to their box centre (float64 positions,
+        # KHR_accessor_float64): the centre, which their instances' matrices take on.
+        self._centres: dict[int, np.ndarray] = {}
+        self._centre_of_built: dict[int, np.ndarray] = {}
 
     def _mesh_spec(self, m: int) -> dict[str, Any]:
         spec = self.meshes[m]
@@ -213,11 +217,12 @@ class _Loader:
         sub = np.concatenate([r.sub if r.sub is not None else np.zeros(len(r.nodes), np.int64)
                               for r in records])
         prim = np.concatenate([np.full(len(r.nodes), r.primitive, np.intp) for r in records])
-        matrices = np.concatenate([r.matrices for r in records])
         with np.errstate(over="ignore", invalid="ignore"):  # refused just below
+            placed = [self._placed(r) for r in records]
+            matrices = np.concatenate(placed)
             bounds = np.concatenate([
                 world_bounds_many(self.primitives[r.primitive].local_bounds.astype(np.float64),
-                        r.matrices) for r in records])
+                                  mats) for r, mats in zip(records, placed, strict=True)])
         if not np.isfinite(bounds).all():
             raise SceneError("the scene's transforms and positions overflow: an instance "
                              "reaches past 1e308 units")
@@ -284,6 +289,16 @@ class _Loader:
         return [_Record(np.full(k, i, np.int64), p, mats, np.arange(k))
                 for p in prims if p is not None]
 
+    def _placed(self, r: _Record) -> np.ndarray:
+        """The record's instance matrices, shape (K, 4, 4), with its primitive's centre moved
+        in when the primitive is stored relative to it (float64 positions)."""
+        centre = self._centres.get(r.primitive)
+        if centre is None:
+            return r.matrices
+        move = np.eye(4)
+        move[:3, 3] = centre
+        return r.matrices @ move
+
     # -- meshes ----------------------------------------------------------------------------
 
     def _mesh_use(self, key: _UseKey) -> list[int | None]:
@@ -302,6 +317,9 @@ class _Loader:
                 out.append(None)
                 continue
             built.name = (name or f"mesh_{m}") + (f"_{p}" if p else "")
+            centre = self._centre_of_built.pop(id(built), None)
+            if centre is not None:
+                self._centres[len(self.primitives)] = centre
             out.append(len(self.primitives))
             self.primitives.append(built)
         self._uses[key] = out
@@ -334,15 +352,18 @@ class _Loader:
         if "POSITION" not in attrs and "POSITION" not in decoded:
             self._drop(what, "no POSITION attribute: left out")
             return None
+        double = False
         if "POSITION" in decoded:
             positions = _as_float(decoded["POSITION"])
         else:
             pos_index = self._accessor_index(attrs, "POSITION", what)
-            reason = check_type(self.accessors.info(pos_index), {"VEC3"},
-                                mesh_quantization.POSITION, f"{what} POSITION")
+            pos_info = self.accessors.info(pos_index)
+            reason = check_type(pos_info, {"VEC3"}, mesh_quantization.POSITION,
+                                f"{what} POSITION")
             if reason:
                 raise SceneError(reason)
             positions = self.accessors.read_float(pos_index)
+            double = pos_info.component_type == DOUBLE
         n = len(positions)
 
         # Indices, checked, then one triangle list.
@@ -418,7 +439,13 @@ class _Loader:
         use = self.materials.get(get_index(prim, "material", len(self.materials.specs), what))
         material, uv = self._uv(use, attrs, decoded, n, take, what)
         colors = self._colors(attrs, decoded, n, take, what)
-        return Primitive(
+        centre = None
+        if double and len(positions):
+            # float64 positions keep their precision: float32 offsets from the box centre, the
+            # centre in the instances' float64 matrices (_instance_matrices).
+            centre = (positions.min(axis=0) + positions.max(axis=0)) / 2
+            positions = positions - centre
+        built = Primitive(
             positions=positions.astype(np.float32),
             normals=normals,
             indices=faces.astype(np.uint32),
@@ -426,6 +453,9 @@ class _Loader:
             uv=uv,
             colors=colors,
         )
+        if centre is not None:
+            self._centre_of_built[id(built)] = centre
+        return built
 
     def _accessor_index(self, attrs: dict[str, Any], semantic: str, what: str) -> int:
         idx = get_index(attrs, semantic, len(self.accessors), f"{what} attribute", required=True)

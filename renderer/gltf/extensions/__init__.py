@@ -7,8 +7,9 @@
 with code of its own has a module here named after it: ``draco`` (KHR_draco_mesh_compression),
 ``meshopt`` (EXT_meshopt_compression), ``gpu_instancing``, ``texture_transform``,
 ``lights_punctual``, ``specular_glossiness``, ``texture_sources`` (EXT_texture_webp and
-EXT_texture_avif), ``node_visibility``, ``primitive_restart``; ``KHR_mesh_quantization`` is the
-set of component types the accessor checks allow (``mesh_quantization``).
+EXT_texture_avif), ``node_visibility``, ``primitive_restart``, ``accessor_float64``;
+``KHR_mesh_quantization`` is the set of component types the accessor checks allow
+(``mesh_quantization``).
 
 :data:`IGNORED` lists extensions accepted and ignored: each only changes shading terms this
 renderer does not have (its model is base colour x (ambient + visibility x (diffuse +
@@ -38,6 +39,8 @@ IMPLEMENTED: dict[str, str] = {
     "KHR_lights_punctual": "directional, point and spot lights",
     "KHR_materials_pbrSpecularGlossiness": "base colour only: diffuseFactor and diffuseTexture "
                                            "when the material has no pbrMetallicRoughness",
+    "KHR_accessor_float64": "float64 accessors wherever float32 ones are allowed; float64 "
+                            "positions kept relative to their primitive's centre",
     "KHR_mesh_primitive_restart": "restart values in strip and fan indices start a new strip "
                                   "or fan",
     "KHR_node_visibility": "visible: false hides a node's subtree (meshes and lights; cameras "
