@@ -488,11 +488,16 @@ class MappingResolver:
 
     def __init__(self, resources: Mapping[str, bytes] | None) -> None:
         self._files = {safe_uri(k): v for k, v in (resources or {}).items()}
+        # Where the files were read from, when from a folder (FolderResources): a missing one
+        # is then said to be missing there, not "not provided".
+        self._folder = getattr(resources, "folder", None)
 
     def get(self, name: str) -> bytes:
         key = safe_uri(name)
         if key not in self._files:
-            raise SceneError(f"the file refers to {name!r}, which was not provided")
+            where = (f"which is not in {self._folder}" if self._folder is not None
+                     else "which was not provided")
+            raise SceneError(f"the file refers to {name!r}, {where}")
         return self._files[key]
 
     __getitem__ = get
@@ -507,7 +512,17 @@ class MappingResolver:
         raise SceneError("the resolver is read-only")
 
 
-def gltf_resources(path: str | Path, data: bytes, max_bytes: int | None = None) -> dict[str, bytes]:
+class FolderResources(dict[str, bytes]):
+    """The files a ``.gltf`` names, as read from its folder (:func:`gltf_resources`): a mapping
+    of relative name -> bytes that remembers the folder, for messages."""
+
+    def __init__(self, folder: Path) -> None:
+        super().__init__()
+        self.folder = folder
+
+
+def gltf_resources(path: str | Path, data: bytes,
+                   max_bytes: int | None = None) -> FolderResources:
     """The external files a ``.gltf`` names (buffers and images, not ``data:`` URIs), read from
     its folder: the one way a scene file on disk gets its resources (library, CLI and batch).
 
@@ -526,6 +541,12 @@ def gltf_resources(path: str | Path, data: bytes, max_bytes: int | None = None) 
         Most bytes read in all; a file that would go past it raises :class:`LimitError`
         (``max_request_bytes``) before it is read.
 
+    Returns
+    -------
+    FolderResources
+        Relative name -> bytes, with the folder (a missing file is then said to be missing
+        there).
+
     Raises
     ------
     SceneError
@@ -536,16 +557,16 @@ def gltf_resources(path: str | Path, data: bytes, max_bytes: int | None = None) 
     import json
 
     path = Path(path)
+    root = path.parent
+    out = FolderResources(root)
     if data[:4] == b"glTF":
-        return {}
+        return out
     try:
         doc = json.loads(data)
     except (ValueError, UnicodeDecodeError):
-        return {}  # the loader gives the proper error
-    out: dict[str, bytes] = {}
+        return out  # the loader gives the proper error
     if not isinstance(doc, dict):
         return out
-    root = path.parent
     total = 0
     for kind in ("buffers", "images"):
         items = doc.get(kind)
