@@ -162,7 +162,6 @@ class _Loader:
         # Primitives stored relative to their box centre (float64 positions,
         # KHR_accessor_float64): the centre, which their instances' matrices take on.
         self._centres: dict[int, np.ndarray] = {}
-        self._centre_of_built: dict[int, np.ndarray] = {}
 
     def _mesh_spec(self, m: int) -> dict[str, Any]:
         spec = self.meshes[m]
@@ -312,12 +311,12 @@ class _Loader:
         out: list[int | None] = []
         for p, prim in enumerate(spec["primitives"]):
             what = f"mesh {m} ({brief(name)}) primitive {p}" if name else f"mesh {m} primitive {p}"
-            built = self._primitive(m, p, prim, s, weights, node, what)
-            if built is None:
+            made = self._primitive(m, p, prim, s, weights, node, what)
+            if made is None:
                 out.append(None)
                 continue
+            built, centre = made
             built.name = (name or f"mesh_{m}") + (f"_{p}" if p else "")
-            centre = self._centre_of_built.pop(id(built), None)
             if centre is not None:
                 self._centres[len(self.primitives)] = centre
             out.append(len(self.primitives))
@@ -331,7 +330,9 @@ class _Loader:
         self._left_out.append(message)
 
     def _primitive(self, m: int, p: int, prim: Any, s: int, weights: tuple[float, ...],
-                   node: int, what: str) -> Primitive | None:
+                   node: int, what: str) -> tuple[Primitive, np.ndarray | None] | None:
+        """The primitive, and the centre its positions are stored relative to (float64
+        positions) or None; None when it is left out."""
         if not isinstance(prim, dict):
             raise SceneError(f"malformed glTF: {what} is not an object")
         mode = prim.get("mode", TRIANGLES)
@@ -453,9 +454,7 @@ class _Loader:
             uv=uv,
             colors=colors,
         )
-        if centre is not None:
-            self._centre_of_built[id(built)] = centre
-        return built
+        return built, centre
 
     def _accessor_index(self, attrs: dict[str, Any], semantic: str, what: str) -> int:
         idx = get_index(attrs, semantic, len(self.accessors), f"{what} attribute", required=True)
