@@ -13,6 +13,7 @@ name (``../``, absolute paths, ``file:``, ``http:``) is refused.
 
 from __future__ import annotations
 
+import json
 import posixpath
 import threading
 import weakref
@@ -554,8 +555,6 @@ def gltf_resources(path: str | Path, data: bytes,
     LimitError
         The files named add up to more than ``max_bytes``.
     """
-    import json
-
     path = Path(path)
     root = path.parent
     out = FolderResources(root)

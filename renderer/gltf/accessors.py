@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError, UnsupportedExtension
-from .extensions import accessor_float64
+from .extensions import accessor_float64, uses
 from .reader import Buffers, brief, get_index, get_int, get_list
 
 BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT, UNSIGNED_INT, FLOAT = 5120, 5121, 5122, 5123, 5125, 5126
@@ -134,7 +134,7 @@ class Accessors:
         self.buffers = buffers
         self.specs = get_list(buffers.doc, "accessors")
         self._cache: dict[int, np.ndarray] = {}
-        self.float64 = accessor_float64.declared(buffers.doc)
+        self.float64 = uses(buffers.doc, accessor_float64.EXTENSION)
 
     def __len__(self) -> int:
         return len(self.specs)

@@ -36,6 +36,7 @@ from .extensions import (
     lights_punctual,
     mesh_quantization,
     primitive_restart,
+    uses,
 )
 from .extensions import texture_transform as tt
 from .materials import Materials, MaterialUse, clamp_colour
@@ -147,7 +148,7 @@ class _Loader:
                          if isinstance(required, list) else set())
         self.graph: NodeGraph = build_graph(self.doc)
         self.warnings += self.graph.warnings
-        self.restarts = primitive_restart.declared(self.doc)
+        self.restarts = uses(self.doc, primitive_restart.EXTENSION)
         self.meshes = get_list(self.doc, "meshes")
         self.skins = get_list(self.doc, "skins")
         self.buffers = Buffers(document, resolver)

@@ -228,10 +228,11 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     special[field("weights")[0]] = True
     special[[i for i, e in zip(*field("extensions"), strict=True)
              if e and not node_visibility.only_extension(e)]] = True
-    hidden_warnings: list[str] = []
     hides = np.zeros(n, bool)
-    hides[[i for i in field("extensions")[0]
-           if node_visibility.hides(nodes[i], hidden_warnings, f"node {names[i]!r}")]] = True
+    visibility_warnings: dict[int, list[str]] = {}
+    for i in field("extensions")[0]:
+        hides[i] = node_visibility.hides(nodes[i], visibility_warnings.setdefault(i, []),
+                                         f"node {names[i]!r}")
 
     parent = np.full(n, -1, np.int64)
     children: list[list[int]] = [[] for _ in range(n)]
@@ -312,7 +313,7 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     warnings += [f"node {names[i]!r}: its rotation has length {length[i]:.3g}, not 1; "
                  + ("normalized" if length[i] > 0 else "no rotation is used")
                  for i in np.flatnonzero(off_unit & in_scene & ~with_matrix).tolist()]
-    warnings += hidden_warnings
+    warnings += [w for i, ws in visibility_warnings.items() if in_scene[i] for w in ws]
     return NodeGraph(nodes, local, world, parent, np.concatenate(order), in_scene, visible,
                      refs["mesh"], refs["skin"], refs["camera"], cast, receive, special, names,
                      warnings)

@@ -97,6 +97,12 @@ def check_extensions(doc: dict[str, Any]) -> list[str]:
     return warnings
 
 
+def uses(doc: dict[str, Any], name: str) -> bool:
+    """Whether the document lists extension ``name`` in ``extensionsUsed`` (for extensions that
+    apply to the whole document: KHR_mesh_primitive_restart, KHR_accessor_float64)."""
+    return name in _names(doc, "extensionsUsed")
+
+
 def _names(doc: dict[str, Any], key: str) -> list[str]:
     value = doc.get(key, [])
     if not isinstance(value, list):

@@ -12,14 +12,6 @@ Without the declaration, componentType 5130 is refused (glTF 2.0 does not have i
 
 from __future__ import annotations
 
-from typing import Any
-
 EXTENSION = "KHR_accessor_float64"
 #: componentType of float64 accessors.
 DOUBLE = 5130
-
-
-def declared(doc: dict[str, Any]) -> bool:
-    """Whether the document lists the extension in ``extensionsUsed``."""
-    used = doc.get("extensionsUsed")
-    return isinstance(used, list) and EXTENSION in used

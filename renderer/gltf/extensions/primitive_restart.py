@@ -9,12 +9,4 @@ on its own (:func:`~..primitives.triangulate`). Triangle lists still may not hol
 
 from __future__ import annotations
 
-from typing import Any
-
 EXTENSION = "KHR_mesh_primitive_restart"
-
-
-def declared(doc: dict[str, Any]) -> bool:
-    """Whether the document lists the extension (it applies to the whole document)."""
-    used = doc.get("extensionsUsed")
-    return isinstance(used, list) and EXTENSION in used
