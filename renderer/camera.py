@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import RequestError, SceneError
 from .params import CameraParams
-from .plan.geometry import look_at, perspective
+from .plan.geometry import look_at, ortho, perspective
 from .plan.instances import primitive_edge, scene_arrays, scene_box  # Scene.bounds, once per scene
 from .scene import Scene, instance_arrays
 
@@ -44,18 +44,21 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Camera:
-    """A resolved perspective camera.
+    """A resolved camera: perspective, or orthographic when ``ymag`` is set.
 
     Attributes
     ----------
     pose : ndarray, shape (4, 4), float64
         Camera-to-world, orthonormal rotation; the camera looks down its local −Z, +Y up.
     yfov : float
-        Vertical field of view in radians.
+        Vertical field of view in radians (perspective; unused when ``ymag`` is set).
     width, height : int
         Image size in pixels; row 0 of every output is the top of the picture.
     znear, zfar : float
         Clip distances, fitted to the scene unless the request fixed them.
+    ymag : float or None
+        Orthographic: half the view's height in scene units (the width follows the image's
+        aspect). None: perspective.
     """
 
     pose: np.ndarray
@@ -64,10 +67,28 @@ class Camera:
     height: int
     znear: float
     zfar: float
+    ymag: float | None = None
+
+    @property
+    def orthographic(self) -> bool:
+        return self.ymag is not None
 
     @property
     def position(self) -> np.ndarray:
         return self.pose[:3, 3]
+
+    @property
+    def forward(self) -> np.ndarray:
+        """The view direction (unit, world), shape (3,)."""
+        return -self.pose[:3, 2]
+
+    def pixel_size(self, distance: np.ndarray | float) -> np.ndarray:
+        """World size of a pixel at ``distance`` along the view axis (same shape, float64):
+        growing with it in perspective, the same everywhere in an orthographic view."""
+        d = np.asarray(distance, np.float64)
+        if self.ymag is not None:
+            return np.full_like(d, 2.0 * self.ymag / self.height)
+        return d * (2.0 * math.tan(self.yfov / 2) / self.height)
 
     def view_from(self, origin: np.ndarray) -> np.ndarray:
         """Origin-relative world to camera, shape (4, 4): the pose is made relative to
@@ -82,12 +103,22 @@ class Camera:
     # the camera is immutable, so is this.
     @cached_property
     def projection(self) -> np.ndarray:
-        """OpenGL perspective projection, shape (4, 4), read-only."""
+        """OpenGL projection (perspective or orthographic), shape (4, 4), read-only."""
+        if self.ymag is not None:
+            x = self.ymag * self.width / self.height
+            return _read_only(ortho(-x, x, -self.ymag, self.ymag, self.znear, self.zfar))
         return _read_only(perspective(self.yfov, self.width / self.height, self.znear,
                                       self.zfar))
 
+    def _half_extents(self, z: float) -> tuple[float, float]:
+        """Half width and half height of the view at distance ``z``."""
+        h = self.ymag if self.ymag is not None else z * math.tan(self.yfov / 2)
+        return h * self.width / self.height, h
+
     def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
-        """World-space rays through every pixel centre.
+        """World-space rays through every pixel centre: from the eye (perspective), or from
+        the pixel's place on the plane through the eye, all along the view axis
+        (orthographic).
 
         Returns
         -------
@@ -95,28 +126,31 @@ class Camera:
         directions : ndarray, shape (H*W, 3)
             Unit vectors, row-major from the top-left pixel.
         """
-        t = math.tan(self.yfov / 2)
-        aspect = self.width / self.height
-        xs = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * t * aspect
-        ys = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * t
+        hx, hy = self._half_extents(1.0)
+        xs = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * hx
+        ys = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * hy
         gx, gy = np.meshgrid(xs, ys)
+        r = self.pose[:3, :3]
+        if self.ymag is not None:
+            local = np.stack([gx, gy, np.zeros_like(gx)], axis=-1).reshape(-1, 3)
+            origins = local @ r.T + self.position
+            return origins, np.broadcast_to(-r[:, 2], origins.shape).copy()
         d = np.stack([gx, gy, -np.ones_like(gx)], axis=-1).reshape(-1, 3)
-        d = d @ self.pose[:3, :3].T
+        d = d @ r.T
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         return np.broadcast_to(self.position, d.shape).copy(), d
 
     def frustum_corners(self, origin: np.ndarray | None = None) -> np.ndarray:
-        """Corners of the view frustum, shape (8, 3): in world space, or relative to
-        ``origin`` (subtracted from the eye before the corners are placed: near corners a
-        fraction of a float64 step of the eye's world coordinates from it keep their
-        precision)."""
-        t = math.tan(self.yfov / 2)
-        aspect = self.width / self.height
+        """Corners of the view volume (a frustum, or a box when orthographic), shape (8, 3): in
+        world space, or relative to ``origin`` (subtracted from the eye before the corners are
+        placed: near corners a fraction of a float64 step of the eye's world coordinates from
+        it keep their precision)."""
         pts = []
         for z in (self.znear, self.zfar):
+            hx, hy = self._half_extents(z)
             for sx in (-1, 1):
                 for sy in (-1, 1):
-                    pts.append((sx * z * t * aspect, sy * z * t, -z))
+                    pts.append((sx * hx, sy * hy, -z))
         p = np.array(pts)
         eye = self.pose[:3, 3] if origin is None else self.pose[:3, 3] - origin
         return p @ self.pose[:3, :3].T + eye
@@ -254,9 +288,9 @@ def view_origin(camera: Camera, scene: Scene, centre: np.ndarray) -> ViewOrigin:
     relative to it, in float64).
 
     Each instance box ahead of the eye (not one around it) is checked at its nearest distance
-    ``near`` (at least the near plane): its pixels there are ``near * 2 tan(yfov / 2) / height``
-    wide, and the float32 values drawn there reach ``|eye - origin| + near + own`` from the
-    origin, where ``own`` is the larger of the instance's longest triangle edge (a varying is
+    ``near`` (at least the near plane): its pixels there are :meth:`Camera.pixel_size` wide,
+    and the float32 values drawn there reach ``|eye - origin| + near + own`` from the origin,
+    where ``own`` is the larger of the instance's longest triangle edge (a varying is
     interpolated from the triangle's vertices) and the reach of its local coordinates (a mesh
     far from its own origin). Shortfalls from the eye's origin are said in the warning.
     """
@@ -265,7 +299,7 @@ def view_origin(camera: Camera, scene: Scene, centre: np.ndarray) -> ViewOrigin:
     if not len(idx):
         return ViewOrigin(centre, "scene_centre")
     near = np.maximum(d[idx], camera.znear)
-    pixel = near * (2.0 * math.tan(camera.yfov / 2) / camera.height)
+    pixel = camera.pixel_size(near)
     local_all, own_all = _own_reach(scene)
     local, own = local_all[idx], own_all[idx]
     eye = camera.position
@@ -306,22 +340,30 @@ def view_origin(camera: Camera, scene: Scene, centre: np.ndarray) -> ViewOrigin:
 def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height: int) -> Camera:
     """Resolve the request's camera against a scene.
 
-    Order: the request's pose or eye/target; else the file's first camera; else an automatic
-    framing that looks at the scene's centre from the front, above and to the side, far enough for
-    the bounding sphere to fit the vertical and horizontal field of view.
+    Order: the request's pose or eye/target; else the file's first camera (with its projection
+    unless the request names one); else an automatic framing that looks at the scene's centre
+    from the front, above and to the side, far enough for the bounding sphere to fit the
+    vertical and horizontal field of view. An orthographic camera without ``ymag`` shows the
+    whole bounding sphere.
     """
     params = params or CameraParams()
     lo, hi = scene_box(scene) if scene.focus is None else scene.focus
     centre = (lo + hi) / 2
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
     yfov = math.radians(params.yfov_deg)
+    ymag = params.ymag
+    orthographic = params.projection == "orthographic"
     if params.pose is not None:
         pose = orthonormalize_pose(np.array(params.pose), "camera")
     elif params.eye is not None:
         pose = look_at(np.array(params.eye), np.array(params.target), np.array(params.up))
     elif scene.cameras:
-        pose = scene.cameras[0].pose
-        yfov = scene.cameras[0].yfov
+        cam = scene.cameras[0]
+        pose = cam.pose
+        if params.projection is None:  # the file's projection
+            orthographic = cam.ymag is not None
+            ymag = cam.ymag
+            yfov = cam.yfov if cam.yfov is not None else yfov
     else:
         aspect = width / height
         half = min(yfov, 2 * math.atan(math.tan(yfov / 2) * aspect)) / 2
@@ -336,6 +378,8 @@ def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height
                 f"the scene spans {2 * radius:.3g} units at {float(np.max(np.abs(centre))):.3g} "
                 "units from the origin: too small there for the automatic camera to frame; "
                 "give the camera's pose, or eye and target") from None
+    if orthographic and ymag is None:
+        ymag = _ortho_fit(pose, centre, radius, width / height)
     # Near/far follow the scene: the tightest range containing its bounding sphere, so depth
     # precision does not depend on the scene's scale or distance from the origin.
     lo, hi = scene_box(scene)
@@ -353,4 +397,16 @@ def resolve_camera(params: CameraParams | None, scene: Scene, width: int, height
         znear = zfar * 1e-4
     if znear >= zfar:  # both given: CameraParams refuses this already
         raise RequestError("camera znear must be smaller than zfar")
-    return Camera(pose, yfov, width, height, znear, zfar)
+    return Camera(pose, yfov, width, height, znear, zfar, ymag if orthographic else None)
+
+
+#: Margin of the automatic orthographic framing around the scene's bounding sphere.
+ORTHO_FIT_MARGIN = 1.05
+
+
+def _ortho_fit(pose: np.ndarray, centre: np.ndarray, radius: float, aspect: float) -> float:
+    """The ``ymag`` of an orthographic camera at ``pose`` that shows the whole sphere
+    (``centre``, ``radius``): its centre's offset across the view plus the radius, in both
+    directions (the width is ``aspect`` times the height)."""
+    x, y = (centre - pose[:3, 3]) @ pose[:3, :2]
+    return max(abs(float(y)) + radius, (abs(float(x)) + radius) / aspect) * ORTHO_FIT_MARGIN

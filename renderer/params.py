@@ -166,7 +166,8 @@ class CameraParams(_Model):
 
     Give either ``pose`` (4×4 camera-to-world, row-major, the camera looks down its local −Z with +Y
     up, as in glTF) or ``eye`` and ``target`` (with ``up``). With neither, the scene's first glTF
-    camera is used, else the camera is framed automatically on the scene's bounds.
+    camera is used, else the camera is framed automatically on the scene's bounds. ``projection``
+    picks a perspective camera (``yfov_deg``) or an orthographic one (``ymag``).
     """
 
     # Whole-object examples: the fields' own examples together would break the rules between
@@ -174,6 +175,8 @@ class CameraParams(_Model):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"eye": [3.0, 2.5, 4.0], "target": [0.0, 0.5, 0.0], "yfov_deg": 45.0},
         {"pose": _IDENTITY_POSE, "znear": 0.1, "zfar": 100.0},
+        {"eye": [0.0, 6.0, 0.5], "target": [0.0, 0.0, 0.0], "projection": "orthographic",
+         "ymag": 2.0},
     ]})
 
     pose: Mat4 | None = Field(
@@ -199,8 +202,22 @@ class CameraParams(_Model):
         "length). Along the view direction, or zero, it is replaced (with a warning)",
         examples=[[0.0, 1.0, 0.0]],
     )
+    projection: Literal["perspective", "orthographic"] | None = Field(
+        default=None,
+        description="'perspective' (with yfov_deg) or 'orthographic' (parallel rays, with "
+        "ymag); omitted: the file camera's when that camera is used, else perspective",
+        examples=["orthographic"],
+    )
     yfov_deg: float = Field(default=45.0, gt=0.5, lt=179.0,
-                            description="vertical field of view, degrees", examples=[45.0])
+                            description="vertical field of view, degrees (perspective only)",
+                            examples=[45.0])
+    ymag: FiniteFloat | None = Field(
+        default=None, ge=1e-9, le=MAX_COORDINATE,
+        description="orthographic only: half the picture's height (scene units, as glTF's "
+        "ymag; the width follows the image's aspect); omitted: the scene's bounding sphere "
+        "fills the picture",
+        examples=[2.0],
+    )
     znear: FiniteFloat | None = Field(
         default=None, ge=1e-9, le=MAX_COORDINATE,
         description="near clip distance along the view axis (scene units); fitted to the scene "
@@ -233,6 +250,11 @@ class CameraParams(_Model):
             problems.append(("target", "target must differ from eye", self.target))
         if self.znear is not None and self.zfar is not None and self.zfar <= self.znear:
             problems.append(("zfar", "zfar must be greater than znear", self.zfar))
+        if self.ymag is not None and self.projection != "orthographic":
+            problems.append(("ymag", "ymag goes with projection 'orthographic'", self.ymag))
+        if self.projection == "orthographic" and "yfov_deg" in self.model_fields_set:
+            problems.append(("yfov_deg", "yfov_deg is a perspective camera's: an orthographic "
+                             "one takes ymag", self.yfov_deg))
         _refuse("CameraParams", problems)
         return self
 

@@ -422,7 +422,7 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
     h, w = camera.height, camera.width
     cam_o, dirs = camera.pixel_rays()
     forward = -camera.pose[:3, 2]
-    cos_f = dirs @ forward  # > 0 for every pixel of a perspective camera
+    cos_f = dirs @ forward  # > 0 for every pixel (1 for an orthographic camera)
     # Near/far planes are planes of constant depth: along each ray they sit at z / cos.
     t_near = camera.znear / cos_f / tr.diag
     t_far = camera.zfar / cos_f / tr.diag
@@ -442,7 +442,10 @@ def trace_reference(scene: Scene, camera: Camera, lights: list[Light]) -> Refere
     p = origins[pix] + d * t[pix, None]  # normalised frame
     # Shadow-ray offsets from the local geometry (module docstring): float32 steps of each
     # surface triangle's coordinates, or a fraction of the pixel's footprint (normalised frame).
-    footprint = (t[pix] + t_near[pix]) * (2 * np.tan(camera.yfov / 2) / h)
+    if camera.orthographic:  # the same at every distance
+        footprint = np.full(len(pix), float(camera.pixel_size(1.0)) / tr.diag)
+    else:
+        footprint = (t[pix] + t_near[pix]) * (2 * np.tan(camera.yfov / 2) / h)
     eps_local = np.maximum(EPS_ULPS * 2.0**-24 * np.abs(tr.tri[f]).max(axis=(1, 2)),
                            EPS_PIXEL * footprint)
     eps_local = np.maximum(eps_local, 1e-12)

@@ -614,7 +614,8 @@ def _camera_report(camera: Camera, scene: Scene) -> dict[str, Any]:
         "eye": camera.pose[:3, 3].tolist(),
         "forward": (-camera.pose[:3, 2]).tolist(),
         "up": camera.pose[:3, 1].tolist(),
-        "yfov_deg": math.degrees(camera.yfov),
+        **({"projection": "orthographic", "ymag": camera.ymag} if camera.orthographic
+           else {"projection": "perspective", "yfov_deg": math.degrees(camera.yfov)}),
         "znear": camera.znear,
         "zfar": camera.zfar,
         "focus_center": ((lo + hi) / 2).tolist(),
@@ -634,7 +635,8 @@ def plan_key(scene: Scene, camera: Camera, lights: list[Light], origin: np.ndarr
         params_json = params.model_dump_json()
     parts = [scene.key.encode(), np.asarray(origin, np.float64).tobytes(),
              camera.pose.tobytes(),
-             repr((camera.yfov, camera.width, camera.height, camera.znear, camera.zfar)).encode(),
+             repr((camera.yfov, camera.ymag, camera.width, camera.height, camera.znear,
+                   camera.zfar)).encode(),
              params_json.encode()]
     parts += [light_bytes(lt) for lt in lights]
     return parts_key(parts)

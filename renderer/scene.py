@@ -147,13 +147,18 @@ class Instance:
 
 @dataclass(frozen=True)
 class SceneCamera:
-    """A perspective camera found in the file: ``pose`` is camera-to-world (4, 4)."""
+    """A camera found in the file: ``pose`` is camera-to-world (4, 4).
+
+    A perspective camera has ``yfov`` (radians) and ``ymag`` None; an orthographic one has
+    ``ymag`` (half the view's height, scene units) and ``yfov`` None.
+    """
 
     pose: np.ndarray
-    yfov: float
+    yfov: float | None
     znear: float | None
     zfar: float | None
     aspect: float | None = None
+    ymag: float | None = None
 
 
 @dataclass(frozen=True)

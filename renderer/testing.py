@@ -18,7 +18,7 @@ import dataclasses
 import itertools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -33,6 +33,7 @@ from .scene import Instance, Material, Scene, scene_from_meshes, world_bounds
 if TYPE_CHECKING:
     import trimesh
 
+    from .metrics import ShadowMetrics
     from .render import Renderer
 
 
@@ -70,6 +71,18 @@ def measure(renderer: Renderer, scene: Scene,
     return Measurement(compare_all(vis, ref), result, ref, seconds)
 
 
+def moved_metrics(renderer: Renderer, scene: Scene,
+                  params: Callable[[float, float], dict[str, Any]], scale: float,
+                  offset: float) -> list[tuple[ShadowMetrics, ShadowMetrics]]:
+    """Per light, the metrics of ``scene`` rendered with ``params(1, 0)`` beside those of the
+    scene scaled by ``scale`` and moved by ``offset`` on every axis (:func:`transformed`),
+    rendered with ``params(scale, offset)``: the request moved alike."""
+    base = measure(renderer, scene, params(1.0, 0.0)).metrics
+    moved = measure(renderer, transformed(scene, scale, (offset,) * 3),
+                    params(scale, offset)).metrics
+    return list(zip(base, moved, strict=True))
+
+
 def transformed(scene: Scene, scale: float = 1.0,
                 offset: Sequence[float] = (0.0, 0.0, 0.0)) -> Scene:
     """The same scene scaled about the origin and then translated (in float64 node matrices),
@@ -100,7 +113,8 @@ def transformed(scene: Scene, scale: float = 1.0,
         return None if value is None else value * scale
 
     cameras = [dataclasses.replace(c, pose=placed(c.pose), znear=scaled(c.znear),
-                                   zfar=scaled(c.zfar)) for c in scene.cameras]
+                                   zfar=scaled(c.zfar), ymag=scaled(c.ymag))
+               for c in scene.cameras]
     lights = [dataclasses.replace(light, pose=placed(light.pose), range=scaled(light.range))
               for light in scene.lights]
     return Scene(scene.primitives, instances, cameras, lights,

@@ -45,7 +45,9 @@ uniform vec4 u_base_color;
 uniform float u_alpha_cutoff;
 #endif
 uniform vec3 u_ambient;
-uniform vec3 u_camera_position;
+// The eye (w = 1); for an orthographic camera the direction toward the viewer (w = 0):
+// to_eye = normalize(xyz - p * w) either way.
+uniform vec4 u_camera_eye;
 uniform float u_specular;
 uniform float u_shininess;
 
@@ -81,7 +83,7 @@ void main() {
     base *= v_color;
 #endif
     vec3 p = v_world;
-    vec3 to_eye = normalize(u_camera_position - p);
+    vec3 to_eye = normalize(u_camera_eye.xyz - p * u_camera_eye.w);
     vec3 n = normalize(v_normal);
     if (dot(n, to_eye) < 0.0) n = -n;  // light the side that is seen
     // Geometric normal, facing the camera: the true slope of the surface for the bias and the
@@ -112,7 +114,7 @@ void main() {
     float vis[VIS_SIZE];
     for (int k = 0; k < VIS_SIZE; ++k) vis[k] = 1.0;
 #if NUM_MAPS_CSM > 0
-    float view_z = dot(p - u_camera_position, u_camera_forward);
+    float view_z = dot(vec4(p, 1.0), u_camera_forward);
     int cascade_read = -1;  // the cascade the first cascaded light read (CASCADE_TINT)
 #endif
 #if NUM_LIGHTS > 0

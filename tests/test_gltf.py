@@ -1162,13 +1162,15 @@ def test_cameras_and_lights_with_their_node_transforms():
     g.node(camera=1)
     g.node(camera=9)  # no such camera: costs the camera, not the scene
     scene = g.load()
-    (cam,) = scene.cameras
+    cam, ortho = scene.cameras
     np.testing.assert_allclose(cam.pose, [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]])
-    assert cam.yfov == 0.8 and cam.znear == 0.1 and cam.zfar is None
+    assert cam.yfov == 0.8 and cam.znear == 0.1 and cam.zfar is None and cam.ymag is None
+    assert ortho.yfov is None and ortho.ymag == 1 and ortho.aspect == 1
+    assert (ortho.znear, ortho.zfar) == (0, 1)
     (light,) = scene.lights
     assert light.type == "point" and light.range == 4
     np.testing.assert_allclose(light.pose[:3, 3], [0, 0, 5])
-    assert any("orthographic" in w for w in scene.warnings)
+    assert not any("orthographic" in w for w in scene.warnings)
     assert any("camera 9 does not exist" in w for w in scene.warnings)
 
 

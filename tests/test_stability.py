@@ -142,10 +142,7 @@ def test_same_iou_at_any_scale_and_offset(renderer, scene, scale, offset):
                        {"type": "directional", "direction": [-0.5, -1.0, -0.3]}],
         }
 
-    base = T.measure(renderer, scene, params(1.0, 0.0)).metrics
-    moved = T.measure(renderer, T.transformed(scene, scale, (offset,) * 3),
-                      params(scale, offset)).metrics
-    for a, b in zip(base, moved, strict=True):
+    for a, b in T.moved_metrics(renderer, scene, params, scale, offset):
         assert a.iou >= 0.95
         assert abs(a.iou - b.iou) <= 0.01, (a, b)
 

@@ -705,11 +705,9 @@ class _Loader:
     def _camera(self, cam: Any, pose: np.ndarray, index: int) -> SceneCamera | None:
         if not isinstance(cam, dict):
             return None
-        if cam.get("type") == "orthographic":
-            self.warnings.append(f"camera {index} is orthographic: not supported, left out")
-            return None
-        p = cam.get("perspective")
-        if cam.get("type") != "perspective" or not isinstance(p, dict):
+        kind = cam.get("type")
+        p = cam.get(kind) if kind in ("perspective", "orthographic") else None
+        if not isinstance(p, dict):
             return None
 
         def num(key: str) -> float | None:
@@ -718,14 +716,38 @@ class _Loader:
                 return None
             return float(v)
 
-        yfov = num("yfov")
-        if yfov is None or not 0 < yfov < math.pi:
-            self.warnings.append(f"camera {index} has no valid yfov (radians, between 0 and "
-                                 f"pi): {brief(p.get('yfov'))}: left out")
-            return None
-        znear, zfar, aspect = num("znear"), num("zfar"), num("aspectRatio")
+        yfov = ymag = aspect = None
+        if kind == "perspective":
+            yfov = num("yfov")
+            if yfov is None or not 0 < yfov < math.pi:
+                self.warnings.append(f"camera {index} has no valid yfov (radians, between 0 "
+                                     f"and pi): {brief(p.get('yfov'))}: left out")
+                return None
+            aspect = num("aspectRatio")
+            if aspect is not None and aspect <= 0:
+                aspect = None
+        else:
+            # The picture's width follows the request's aspect, as a perspective camera's
+            # aspectRatio does: xmag is only checked.
+            ymag, xmag = num("ymag"), num("xmag")
+            if ymag is None or ymag == 0 or not abs(ymag) <= MAX_COORDINATE:
+                self.warnings.append(f"camera {index} has no valid ymag (half the view's "
+                                     f"height, non-zero): {brief(p.get('ymag'))}: left out")
+                return None
+            if xmag is None or xmag == 0:
+                self.warnings.append(f"camera {index}: xmag {brief(p.get('xmag'))} is not a "
+                                     "non-zero number: the width follows the image's aspect")
+            else:
+                if xmag < 0 or ymag < 0:
+                    # Negative magnifications (the specification advises against them) would
+                    # mirror the picture: it is drawn unmirrored.
+                    self.warnings.append(f"camera {index}: negative xmag or ymag (a mirrored "
+                                         "picture): drawn unmirrored")
+                aspect = abs(xmag / ymag)
+            ymag = abs(ymag)
+        znear, zfar = num("znear"), num("zfar")
         # Each is optional: one that cannot be used is fitted to the scene instead.
-        if znear is not None and znear <= 0:
+        if znear is not None and (znear < 0 or (znear == 0 and kind == "perspective")):
             self.warnings.append(f"camera {index}: znear {znear} is not positive: fitted to the "
                                  "scene instead")
             znear = None
@@ -733,6 +755,4 @@ class _Loader:
             self.warnings.append(f"camera {index}: zfar {zfar} is not beyond znear: fitted to "
                                  "the scene instead")
             zfar = None
-        if aspect is not None and aspect <= 0:
-            aspect = None
-        return SceneCamera(pose, yfov, znear, zfar, aspect)
+        return SceneCamera(pose, yfov, znear, zfar, aspect, ymag)

@@ -325,7 +325,10 @@ class CameraPass:
         if "depth" in outputs:
             d = fb.read_depth().astype(np.float64)
             n, f = camera.znear, camera.zfar
-            if self.reversed_z:  # window depth n (f - z) / ((f - n) z): 1 at z = n, 0 at f
+            if camera.orthographic:  # window depth linear in z: (z - n) / (f - n), or 1 - that
+                z = n + ((1.0 - d) if self.reversed_z else d) * (f - n)
+                nothing = d <= 0.0 if self.reversed_z else d >= 1.0
+            elif self.reversed_z:  # window depth n (f - z) / ((f - n) z): 1 at z = n, 0 at f
                 z = n * f / (d * (f - n) + n)
                 nothing = d <= 0.0
             else:
@@ -482,6 +485,22 @@ def _family(m: ShadowMap) -> str:
     return "cube" if m.plan.kind == "cube" else "2d"
 
 
+def camera_eye(camera: Camera, eye: np.ndarray) -> np.ndarray:
+    """``u_camera_eye``, shape (4,): the eye (origin-relative, ``eye``) with w = 1; for an
+    orthographic camera the direction toward the viewer with w = 0 (its view rays are
+    parallel)."""
+    if camera.orthographic:
+        return np.append(-camera.forward, 0.0)
+    return np.append(eye, 1.0)
+
+
+def camera_forward(camera: Camera, eye: np.ndarray) -> np.ndarray:
+    """``u_camera_forward``, shape (4,): the view axis, and w such that the view depth of an
+    origin-relative point p is ``dot((p, 1), u_camera_forward)``."""
+    f = camera.forward
+    return np.append(f, -float(f @ eye))
+
+
 class _FrameState:
     """Defines and uniforms shared by every draw of one frame."""
 
@@ -600,7 +619,7 @@ class _FrameState:
         out.append(("u_ambient", p.ambient))
         lights = self.plan.lights
         if lights:  # without lights only the ambient term remains
-            out.append(("u_camera_position", self.eye))
+            out.append(("u_camera_eye", camera_eye(self.plan.camera, self.eye)))
             out.append(("u_specular", p.specular))
             out.append(("u_shininess", p.shininess))
             origin = self.plan.origin
@@ -675,7 +694,7 @@ class _FrameState:
         out: list[tuple[str, object]] = [
             ("u_mapcsm", [units[self.maps.index(m)] for m in cascaded]),
             ("u_csm_size", [float(m.plan.cascades[0].map_size) for m in cascaded]),
-            ("u_camera_forward", -self.plan.camera.pose[:3, 2]),
+            ("u_camera_forward", camera_forward(self.plan.camera, self.eye)),
             ("u_csm_matrix", matrix), ("u_csm_view", view), ("u_csm_depth", depth),
             ("u_csm_split", split)]
         if normal_offset:

@@ -179,7 +179,8 @@ def _pow2(x: float) -> int:
 
 def _pixel(ctx: PlanContext, distance: float) -> float:
     """World size of :data:`CASCADE_TEXEL_PIXELS` camera pixels at ``distance``."""
-    return ctx.pixel_per_distance / AUTO_TEXEL_PIXELS * CASCADE_TEXEL_PIXELS * distance
+    return (ctx.pixel_per_distance / AUTO_TEXEL_PIXELS * CASCADE_TEXEL_PIXELS
+            * float(ctx.view_distance(distance)))
 
 
 def fit_slice(ctx: PlanContext, light: Light, position: np.ndarray, sl: Slice,

@@ -141,7 +141,8 @@ class PlanContext:
     frustum_corners : ndarray, shape (8, 3)
         The camera's view frustum.
     pixel_per_distance : float
-        World size of one camera pixel at unit distance, times :data:`AUTO_TEXEL_PIXELS`.
+        World size of one camera pixel at unit distance, times :data:`AUTO_TEXEL_PIXELS`: a
+        pixel at camera distance d is ``pixel_per_distance * view_distance(d)`` wide.
     max_size : int
         Largest map side allowed.
     margin_texels : int
@@ -170,6 +171,9 @@ class PlanContext:
     max_size: int
     margin_texels: int
     texel_distance: float | None = None
+    #: An orthographic camera's pixels are the same size at every distance: the distances that
+    #: size texels all count as this one (:meth:`view_distance`). None: perspective.
+    flat_distance: float | None = None
     #: Where given, every :meth:`map_size_for` call appends its (world, receivers, cube, toward,
     #: size): what a scene-fit light's plan read of the camera (see :func:`.plan.scene_fit_key`).
     sizes_read: list[tuple[float, np.ndarray, bool, Toward | None, int]] | None = None
@@ -190,6 +194,7 @@ class PlanContext:
         planes = view_planes(camera, origin)
         frustum_corners = _frozen(camera.frustum_corners(origin))
         in_view, whole = aabbs_against_frustum(rel.bounds, planes, frustum_corners)
+        flat = camera.zfar if camera.orthographic else None
         receivers = _visible_receivers(in_view, arrays.receive, params.optimize)
         return cls(
             camera=camera,
@@ -206,7 +211,9 @@ class PlanContext:
             seen=Seen.clip(rel.bounds, receivers, whole, planes, frustum_corners),
             cam_pos=_frozen(camera.pose[:3, 3] - origin),
             frustum_corners=frustum_corners,
-            pixel_per_distance=2 * math.tan(camera.yfov / 2) / camera.height * AUTO_TEXEL_PIXELS,
+            pixel_per_distance=float(camera.pixel_size(flat or 1.0)) / (flat or 1.0)
+            * AUTO_TEXEL_PIXELS,
+            flat_distance=flat,
             max_size=shadow.max_map_size,
             margin_texels=(shadow.pcf_kernel // 2 if shadow.filter == "pcf" else 0) + 2,
             arrays=arrays,
@@ -279,6 +286,15 @@ class PlanContext:
         may read a few texels beyond the receivers."""
         return extent / size * self.margin_texels
 
+    def view_distance(self, d: np.ndarray | float) -> np.ndarray:
+        """Camera distances ``d`` as the texel sizes see them (same shape, float64): themselves
+        in perspective, :attr:`flat_distance` each in an orthographic view (its pixels are the
+        same size at every distance)."""
+        d = np.asarray(d, np.float64)
+        if self.flat_distance is None:
+            return d
+        return np.full_like(d, self.flat_distance)
+
     def receiver_distance(self, receivers: np.ndarray, toward: Toward | None = None) -> float:
         """A representative camera distance of the receivers: the nearest box centre, or nearer
         where a light ``toward`` stretches its texels over their flat faces.
@@ -293,8 +309,8 @@ class PlanContext:
         light's angle to the face).
         """
         if self.texel_distance is not None:
-            return self.texel_distance
-        d = np.linalg.norm(self.centres[receivers] - self.cam_pos, axis=1)
+            return float(self.view_distance(self.texel_distance))
+        d = self.view_distance(np.linalg.norm(self.centres[receivers] - self.cam_pos, axis=1))
         near = float(max(np.min(d), self.camera.znear))
         if toward is None or self.arrays is None:
             return near
@@ -310,7 +326,9 @@ class PlanContext:
         if len(owner) == 0:
             return near
         centre = self.centres[idx][owner]
-        view = centre - self.cam_pos
+        # The direction pixels look along: from the eye, or the view axis (orthographic).
+        view = (centre - self.cam_pos if self.flat_distance is None
+                else np.broadcast_to(self.camera.forward, centre.shape))
         length = np.sqrt((view * view).sum(axis=1))
         ok = length > 0
         if not ok.any():

@@ -439,7 +439,8 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     # orders of magnitude in distance want far more than the typical one the size is for.
     pts = np.concatenate([ctx.corners[ctx.seen.whole].reshape(-1, 3), ctx.seen.points])
     d_l = -(pts @ reach.view[2, :3] + reach.view[2, 3])
-    d_c = np.maximum(np.linalg.norm(pts - ctx.cam_pos, axis=1), ctx.camera.znear)
+    d_c = ctx.view_distance(np.maximum(np.linalg.norm(pts - ctx.cam_pos, axis=1),
+                                       ctx.camera.znear))
     ok = d_l > 0
     ratio = float(np.max(d_l[ok] / d_c[ok])) if ok.any() else 0.0
     # (at one camera pixel per texel: the half pixel 'auto' aims at is a target, not a need)

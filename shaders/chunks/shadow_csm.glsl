@@ -23,7 +23,8 @@ uniform vec4 u_csm_depth[NUM_MAPS_CSM * MAX_CASCADES];
 // end over which it fades into the next one.
 uniform vec2 u_csm_split[NUM_MAPS_CSM * MAX_CASCADES];
 uniform float u_csm_size[NUM_MAPS_CSM];                  // texels per side of every layer
-uniform vec3 u_camera_forward;
+// The view axis and the eye's place along it: view depth = dot(vec4(p, 1), u_camera_forward).
+uniform vec4 u_camera_forward;
 
 // Shadow of the receiver at p in cascade k of array map `map` (orthographic, like
 // visibility_2d_from for an orthographic 2D map).

@@ -186,14 +186,23 @@ def camera_meta(camera: Camera) -> dict[str, Any]:
     ``camera_to_world`` is the glTF/OpenGL pose (the camera looks down its −Z, +Y up);
     ``K`` and ``world_to_camera_opencv`` are the same camera in the computer-vision convention
     (x right, y down, z forward; pixel ``(u, v)`` has its centre at ``u + 0.5, v + 0.5`` with row
-    0 at the top of every image), so ``K @ (R X + t)`` projects a world point to pixels.
+    0 at the top of every image). Perspective: ``K @ (R X + t)`` projects a world point to
+    pixels (after dividing by its z). Orthographic (``projection``, ``ymag``): ``K @ (R X + t)``
+    with the camera point's z replaced by 1, i.e. ``fx``, ``fy`` are pixels per scene unit.
     """
-    f = camera.height / 2 / math.tan(camera.yfov / 2)
     cx, cy = camera.width / 2, camera.height / 2
     flip = np.diag([1.0, -1.0, -1.0, 1.0])
+    if camera.orthographic:
+        assert camera.ymag is not None
+        f = camera.height / 2 / camera.ymag
+        lens: dict[str, Any] = {"projection": "orthographic", "ymag": camera.ymag,
+                                "xmag": camera.ymag * camera.width / camera.height}
+    else:
+        f = camera.height / 2 / math.tan(camera.yfov / 2)
+        lens = {"projection": "perspective", "yfov_deg": math.degrees(camera.yfov)}
     return {
         "width": camera.width, "height": camera.height,
-        "yfov_deg": math.degrees(camera.yfov), "znear": camera.znear, "zfar": camera.zfar,
+        **lens, "znear": camera.znear, "zfar": camera.zfar,
         "fx": f, "fy": f, "cx": cx, "cy": cy,
         "K": [[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]],
         "camera_to_world": camera.pose.tolist(),
