@@ -38,14 +38,15 @@ frames the scene. Values may be separated by commas or spaces.
 
 Flags override the matching fields of PARAMS: --size/--width/--height set width/height,
 --light-dir replaces lights with one directional light, --ground/--no-ground set ground,
---camera-orbit/--camera-target replace camera's pose/eye/target/up (yfov_deg, znear and zfar
-stay), --outputs sets outputs.
+--camera-orbit/--camera-target replace camera's pose/eye/target/up (projection, yfov_deg, ymag,
+znear and zfar stay), --outputs sets outputs.
 
 PARAMS is a JSON file with the request (all fields optional), for example:
 
 {example}
 
-Fields: width, height; camera {{pose 4x4 | eye, target, up; yfov_deg; znear; zfar}} (omitted: the
+Fields: width, height; camera {{pose 4x4 | eye, target, up; projection perspective (yfov_deg) |
+orthographic (ymag); znear; zfar}} (omitted: the
 file's camera, else framed automatically); lights [{{type directional|spot|point; pose 4x4 |
 position, direction | position, target; color; intensity; inner_cone_deg, outer_cone_deg (spot);
 range (spot, point); cast_shadows}}] (each type only its own fields; a point light has a pose or

@@ -325,6 +325,30 @@ def test_drag_and_wheel_orbit_the_camera(server_url):
         assert np.abs(image2.astype(int) - image1.astype(int)).mean() > 3
 
 
+def test_an_orthographic_camera_keeps_its_projection_and_zooms_by_ymag(server_url):
+    """The orbit takes the projection of the camera the plan reports: an orthographic one is
+    sent back orthographic, and the wheel scales its ymag, not its distance."""
+    with devtools(f"{server_url}/?autorender=1&width=320&height=240") as page:
+        _render_done(page, 0)
+        n = _renders(page)
+        # As if the scene's own camera were orthographic (a file's): the page starts from it.
+        page.evaluate("(() => { const c = JSON.parse(document.getElementById('plan')"
+                      ".textContent).camera; c.projection = 'orthographic'; c.ymag = 2.0;"
+                      " delete c.yfov_deg; orbit = orbitFrom(c); requestRender(); })()")
+        sent, image0 = _render_done(page, n)
+        assert sent["camera"]["projection"] == "orthographic" and sent["camera"]["ymag"] == 2.0
+        assert "yfov_deg" not in sent["camera"]
+        plan = json.loads(page.evaluate("document.getElementById('plan').textContent"))
+        assert plan["camera"]["projection"] == "orthographic" and plan["camera"]["ymag"] == 2.0
+        x, y = _image_centre(page)
+        n = _renders(page)
+        page.mouse("mouseWheel", x, y, deltaX=0, deltaY=-300)
+        zoomed, image1 = _render_done(page, n)
+        assert math.isclose(zoomed["camera"]["ymag"], 2.0 * math.exp(-0.3), rel_tol=1e-9)
+        assert zoomed["camera"]["eye"] == sent["camera"]["eye"]
+        assert np.abs(image1.astype(int) - image0.astype(int)).mean() > 3
+
+
 def test_light_azimuth_and_elevation_set_the_direction(server_url):
     with devtools(f"{server_url}/?autorender=1&width=320&height=240&debug=light_depth") as page:
         first, image0 = _render_done(page, 0)
