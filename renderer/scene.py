@@ -13,6 +13,7 @@ name (``../``, absolute paths, ``file:``, ``http:``) is refused.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import posixpath
 import threading
@@ -62,6 +63,9 @@ class Material:
     alpha_cutoff : float
         Used when ``alpha_mode == "MASK"``.
     double_sided : bool
+    unlit : bool
+        ``KHR_materials_unlit``: the colour image shows the base colour as it is (no lighting,
+        no shadow); the surface still casts shadows and has visibility.
     """
 
     base_color: np.ndarray
@@ -69,6 +73,7 @@ class Material:
     alpha_mode: str = "OPAQUE"
     alpha_cutoff: float = 0.5
     double_sided: bool = False
+    unlit: bool = False
 
     @property
     def shadow_cutoff(self) -> float | None:
@@ -661,8 +666,7 @@ def _primitive_from_trimesh(mesh: trimesh.Trimesh, name: str) -> Primitive:
         raise SceneError(f"mesh {name!r} has NaN or infinite vertex positions")
     material, uv, colors = _material(mesh.visual)
     if uv is not None and len(uv) != len(verts):
-        uv, material = None, Material(material.base_color, None, material.alpha_mode,
-                                      material.alpha_cutoff, material.double_sided)
+        uv, material = None, dataclasses.replace(material, texture=None)
     if colors is not None and len(colors) != len(verts):
         colors = None
     if colors is not None and np.allclose(colors, 1.0):

@@ -19,6 +19,7 @@
 #define HAS_UV 0            // base colour texture
 #define HAS_COLOR 0         // vertex colours
 #define ALPHA_MASK 0        // alpha cut-out
+#define UNLIT 0             // KHR_materials_unlit: the colour is the base colour (visibility still out)
 #define OUT_VISIBILITY 0    // RGBA visibility targets, four lights each
 #define ENCODING ENC_DEPTH  // how the maps store depth
 #define FILTER_PCF 0        // the PCF loop (of PCF_RADIUS taps either side)
@@ -165,6 +166,11 @@ void main() {
     const vec3 TINT[4] = vec3[4](vec3(1.0, 0.55, 0.55), vec3(0.55, 1.0, 0.55),
                                  vec3(0.55, 0.65, 1.0), vec3(1.0, 1.0, 0.45));
     if (cascade_read >= 0) color *= TINT[cascade_read % 4];
+#endif
+#if UNLIT
+    // Lighting, shadows included, is already in an unlit surface's colour; without visibility
+    // outputs the compiler drops the lighting above.
+    color = base.rgb;
 #endif
     o_color = vec4(linear_to_srgb(color), base.a);
 #if OUT_VISIBILITY > 0

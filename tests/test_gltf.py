@@ -1371,8 +1371,7 @@ def test_supported_extensions_are_listed():
                  "KHR_materials_pbrSpecularGlossiness", "KHR_materials_emissive_strength"):
         assert name in SUPPORTED and SUPPORTED[name]
     # Extensions whose absence would change shadows are not "ignorable".
-    for name in ("KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_unlit",
-                 "KHR_texture_basisu"):
+    for name in ("KHR_materials_transmission", "KHR_materials_volume", "KHR_texture_basisu"):
         assert name not in SUPPORTED and name not in IGNORED
 
 

@@ -219,3 +219,70 @@ def test_every_model_renders_right_under_every_light_type(renderer, models, name
     lights = T.corpus_lights(scene)[kind]
     m = T.measure(renderer, scene.with_ground(), RenderParams(lights=lights))
     assert m.metrics[0].iou >= T.CORPUS_IOU, (name, kind, m.metrics[0].iou)
+
+
+# -- KHR_materials_unlit --------------------------------------------------------------------------
+
+#: Linear base colours of the hexagon and the ground, and the ground's sRGB value in the image.
+HEX_COLOUR, GROUND_COLOUR = [0.8, 0.2, 0.1, 1.0], [0.2, 0.4, 0.6, 1.0]
+
+
+def _unlit(hexagon: bool, ground: bool) -> bytes:
+    """The hexagon over the ground, each material unlit or not."""
+    g = Gltf()
+
+    def material(colour: list[float], unlit: bool) -> int:
+        m: dict = {"pbrMetallicRoughness": {"baseColorFactor": colour}}
+        if unlit:
+            m["extensions"] = {"KHR_materials_unlit": {}}
+        g.doc.setdefault("materials", []).append(m)
+        return len(g.doc["materials"]) - 1
+
+    g.doc["extensionsUsed"] = ["KHR_materials_unlit"]
+    tris = np.array([[FAN[0], FAN[i], FAN[i + 1]] for i in range(1, len(FAN) - 1)]).reshape(-1)
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(HEXAGON)},
+                        "indices": g.accessor(tris.astype(np.uint16), ctype=USHORT),
+                        "material": material(HEX_COLOUR, hexagon)}))
+    quad = g.accessor(np.array([0, 1, 2, 0, 2, 3]), ctype=USHORT)
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(GROUND)}, "indices": quad,
+                        "material": material(GROUND_COLOUR, ground)}))
+    return g.glb()
+
+
+def _srgb(linear: list[float]) -> np.ndarray:
+    c = np.asarray(linear[:3])
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055) * 255
+
+
+def test_an_unlit_surface_shows_its_base_colour_and_keeps_its_visibility(renderer):
+    """KHR_materials_unlit: the unlit ground is its base colour in light and in shadow alike,
+    its visibility output is the lit ground's, and the unlit hexagon still casts its shadow."""
+    params = RenderParams.model_validate({**VIEW, "outputs": ["color", "visibility"]})
+    unlit_scene = load_scene(_unlit(hexagon=True, ground=True))
+    assert not any("KHR_materials_unlit" in w for w in unlit_scene.warnings)
+    assert all(p.material.unlit for p in unlit_scene.primitives)
+    lit = renderer.render(load_scene(_unlit(hexagon=False, ground=False)), params)
+    unlit = renderer.render(unlit_scene, params)
+    np.testing.assert_array_equal(unlit.visibility, lit.visibility)
+    vis = unlit.visibility[..., 0]
+    shadow = vis == 0.0
+    assert shadow.sum() > 200  # the unlit hexagon's shadow
+    colour = unlit.color.astype(float)
+    ground = np.all(np.abs(colour - _srgb(GROUND_COLOUR)) <= 1.0, axis=-1)
+    hexagon = np.all(np.abs(colour - _srgb(HEX_COLOUR)) <= 1.0, axis=-1)
+    drawn = np.isfinite(vis)
+    assert np.all(ground | hexagon | ~drawn)  # nothing but the two base colours
+    assert ground[shadow].all() and ground[vis == 1.0].sum() > 1000
+    # Lit, the same ground is darker in the shadow than out of it.
+    lit_grey = lit.color.astype(float).mean(axis=-1)
+    assert lit_grey[shadow].mean() < lit_grey[lit.visibility[..., 0] == 1.0].mean() - 20
+
+
+def test_unlit_colour_needs_no_lookup_without_a_visibility_output(renderer):
+    """Without the visibility output an unlit surface's shader variant has no lighting code:
+    the colour image is the same as with it."""
+    scene = load_scene(_unlit(hexagon=False, ground=True))
+    both = renderer.render(scene, RenderParams.model_validate(
+        {**VIEW, "outputs": ["color", "visibility"]}))
+    colour = renderer.render(scene, RenderParams.model_validate({**VIEW, "outputs": ["color"]}))
+    np.testing.assert_array_equal(colour.color, both.color)

@@ -27,7 +27,12 @@ import numpy.typing as npt
 
 from ..errors import LimitError, SceneError
 from ..scene import Material, safe_uri
-from .extensions import specular_glossiness, texture_sources, texture_transform
+from .extensions import (
+    materials_unlit,
+    specular_glossiness,
+    texture_sources,
+    texture_transform,
+)
 from .reader import Buffers, Resolver, brief, extension, get_list, is_data_uri, load_uri
 
 #: Largest texture decoded (pixels): 64 Mpixel, like PIL's ``Image.MAX_IMAGE_PIXELS`` guard.
@@ -191,7 +196,8 @@ class Materials:
             alpha_mode = "OPAQUE"
         cutoff = self._cutoff(spec, label, alpha_mode)
         double_sided = spec.get("doubleSided", False) is True
-        untextured = Material(factor, None, alpha_mode, cutoff, double_sided)
+        untextured = Material(factor, None, alpha_mode, cutoff, double_sided,
+                              materials_unlit.unlit(spec))
         texture, tex_coord, transform, wrap = self._texture(tex_info, label)
         material = (untextured if texture is None
                     else dataclasses.replace(untextured, texture=texture))

@@ -268,7 +268,7 @@ class CameraPass:
                 # renderer's plan cache hands the same object back for a repeated request,
                 # and the plan's key covers the request's every field) holds them already.
                 if prog.frame_plan is not plan or prog.frame_units != units:
-                    frame.set_frame_uniforms(prog, units)
+                    frame.set_frame_uniforms(prog, units, lenient=mat.unlit)
                     prog.frame_plan, prog.frame_units = plan, list(units)
                 frame.ready.add(prog.id)
             prog.set("u_base_color", mat.base_color)
@@ -284,7 +284,7 @@ class CameraPass:
                 GL.glVertexAttrib4f(SPARE_COLOR, 1.0, 1.0, 1.0, 1.0)
             if frame.alpha_mask(mat):
                 prog.set("u_alpha_cutoff", mat.alpha_cutoff if mat.alpha_mode == "MASK" else -1.0)
-            if frame.maps:
+            if frame.maps and (not mat.unlit or prog.has("u_receive_shadow")):
                 prog.set("u_receive_shadow", int(receive))
             if mat.double_sided or mat.alpha_mode == "BLEND":
                 GL.glDisable(GL.GL_CULL_FACE)
@@ -578,6 +578,7 @@ class _FrameState:
             "HAS_UV": self.has_uv(gp),
             "HAS_COLOR": self.generic or has_color,
             "ALPHA_MASK": self.alpha_mask(mat),
+            "UNLIT": mat.unlit,
             "OUT_VISIBILITY": self.vis_targets,
             "ENCODING": encodings.ENCODING_ID[shadows.encoding],
             "FILTER_PCF": self.pcf,
@@ -600,11 +601,14 @@ class _FrameState:
             d["LOC_COLOR"] = gp.loc_color if has_color else SPARE_COLOR
         return d
 
-    def set_frame_uniforms(self, prog: Program, units: list[int]) -> None:
+    def set_frame_uniforms(self, prog: Program, units: list[int], lenient: bool = False) -> None:
         """Set the frame's uniforms on ``prog`` (bound); every program of the frame takes the
-        same values, worked out once (:meth:`frame_uniforms`)."""
+        same values, worked out once (:meth:`frame_uniforms`). ``lenient``: an unlit variant,
+        whose compiler dropped the lighting (and with it those uniforms) unless visibility is
+        output: only the uniforms it has are set."""
         for name, value in self.frame_uniforms(units):
-            prog.set(name, value)
+            if not lenient or prog.has(name):
+                prog.set(name, value)
 
     def frame_uniforms(self, units: list[int]) -> list[tuple[str, np.ndarray]]:
         """The frame's uniforms as (name, value) pairs, the maps bound to ``units``: computed

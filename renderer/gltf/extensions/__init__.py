@@ -7,7 +7,8 @@
 with code of its own has a module here named after it: ``draco`` (KHR_draco_mesh_compression),
 ``meshopt`` (EXT_meshopt_compression), ``gpu_instancing``, ``texture_transform``,
 ``lights_punctual``, ``specular_glossiness``, ``texture_sources`` (EXT_texture_webp and
-EXT_texture_avif), ``node_visibility``, ``primitive_restart``, ``accessor_float64``;
+EXT_texture_avif), ``node_visibility``, ``primitive_restart``, ``accessor_float64``,
+``materials_unlit``;
 ``KHR_mesh_quantization`` is the set of component types the accessor checks allow
 (``mesh_quantization``).
 
@@ -16,7 +17,7 @@ renderer does not have (its model is base colour x (ambient + visibility x (diff
 specular)), with its own specular term), so leaving it out cannot change geometry, alpha
 cut-outs or shadows. Not among them, on purpose: ``KHR_materials_transmission`` and
 ``KHR_materials_volume`` (light passes through, so shadows would be lighter),
-``KHR_materials_unlit`` (an unlit surface shows no shadow), ``KHR_texture_basisu`` (KTX2
+``KHR_texture_basisu`` (KTX2
 textures, which no decoder here reads: the base-colour texture, hence its cut-outs, would be
 lost), ``EXT_meshopt_compression``-like codecs other than the two implemented, and
 ``KHR_materials_pbrSpecularGlossiness`` beyond its diffuse colour (listed, partial).
@@ -47,6 +48,8 @@ IMPLEMENTED: dict[str, str] = {
                            "stay)",
     "EXT_texture_webp": "WebP textures, read before the texture's plain source (its fallback)",
     "EXT_texture_avif": "AVIF textures, read before the texture's plain source (its fallback)",
+    "KHR_materials_unlit": "the colour image shows the base colour as it is (no lighting, no "
+                           "shadow); the surface still casts shadows and has visibility",
 }
 
 #: Extensions accepted and ignored: their absence changes no geometry, cut-out or shadow.
