@@ -278,11 +278,21 @@ def test_an_unlit_surface_shows_its_base_colour_and_keeps_its_visibility(rendere
     assert lit_grey[shadow].mean() < lit_grey[lit.visibility[..., 0] == 1.0].mean() - 20
 
 
-def test_unlit_colour_needs_no_lookup_without_a_visibility_output(renderer):
-    """Without the visibility output an unlit surface's shader variant has no lighting code:
-    the colour image is the same as with it."""
-    scene = load_scene(_unlit(hexagon=False, ground=True))
+@pytest.mark.parametrize("hexagon", [False, True])
+def test_unlit_receivers_need_no_map_without_a_visibility_output(renderer, hexagon):
+    """Without the visibility output nothing shows an unlit surface's shadows: the maps are not
+    fitted to it (the plan says how many were left out), and with nothing else receiving there
+    is no light pass at all. The colour image is the same as with the output."""
+    scene = load_scene(_unlit(hexagon=hexagon, ground=True))
     both = renderer.render(scene, RenderParams.model_validate(
         {**VIEW, "outputs": ["color", "visibility"]}))
     colour = renderer.render(scene, RenderParams.model_validate({**VIEW, "outputs": ["color"]}))
     np.testing.assert_array_equal(colour.color, both.color)
+    assert "unlit_receivers" not in both.plan["camera_pass"]["skipped"]
+    assert both.plan["light_passes"] == 1
+    assert colour.plan["camera_pass"]["skipped"]["unlit_receivers"] == 1 + hexagon
+    # Nothing shows a shadow; the lit hexagon still receives, but only the hexagon, a plane
+    # facing the light, could shadow it.
+    assert colour.plan["light_passes"] == 0
+    assert colour.plan["lights"][0]["skipped_pass"] == (
+        "no_visible_receiver" if hexagon else "no_caster_in_frustum")

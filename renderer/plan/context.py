@@ -67,6 +67,15 @@ def _pow2_at_least(x: float, lo: int, hi: int) -> int:
     return int(min(hi, 2 ** math.ceil(math.log2(x))))
 
 
+def shown_receivers(arrays: SceneArrays, params: RenderParams) -> np.ndarray:
+    """The receivers whose shadows the request shows (N,) bool: every receiving instance, but
+    for those of unlit materials (``KHR_materials_unlit``, whose colour shows no shadow) when no
+    ``visibility`` output asks for their shadows. Maps are fitted to these alone."""
+    if "visibility" in params.outputs or not arrays.unlit.any():
+        return arrays.receive
+    return _frozen(arrays.receive & ~arrays.unlit)
+
+
 def _visible_receivers(in_view: np.ndarray, receive: np.ndarray, optimize: bool) -> np.ndarray:
     """Indices of the receivers the camera may see; without ``optimize``, all receivers when it
     sees none."""
@@ -195,7 +204,8 @@ class PlanContext:
         frustum_corners = _frozen(camera.frustum_corners(origin))
         in_view, whole = aabbs_against_frustum(rel.bounds, planes, frustum_corners)
         flat = camera.zfar if camera.orthographic else None
-        receivers = _visible_receivers(in_view, arrays.receive, params.optimize)
+        receive = shown_receivers(arrays, params)
+        receivers = _visible_receivers(in_view, receive, params.optimize)
         return cls(
             camera=camera,
             params=params,
@@ -204,7 +214,7 @@ class PlanContext:
             corners=rel.corners,
             centres=rel.centres,
             cast=arrays.cast,
-            receive=arrays.receive,
+            receive=receive,
             planes=rel.planes,
             extent=rel.extent,
             in_view=_frozen(in_view),

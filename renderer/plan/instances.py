@@ -324,6 +324,8 @@ class SceneArrays:
         The instances' cast and receive flags.
     primitive : ndarray, shape (N,), int
         Each instance's primitive.
+    unlit : ndarray, shape (N,), bool
+        Whether its material is unlit (``KHR_materials_unlit``).
     planes : Planes
         World planes of the flat instances.
     box : ndarray, shape (2, 3)
@@ -339,6 +341,7 @@ class SceneArrays:
     cast: np.ndarray
     receive: np.ndarray
     primitive: np.ndarray
+    unlit: np.ndarray
     planes: Planes
     box: np.ndarray
     coarse: np.ndarray
@@ -361,11 +364,14 @@ class SceneArrays:
         receive = np.fromiter(map(attrgetter("receive_shadow"), insts), bool, n)
         prim = np.fromiter(map(attrgetter("primitive"), insts), np.intp, n)
         planes = instance_planes(scene.primitives, insts, prim)
+        unlit = np.fromiter((p.material.unlit for p in scene.primitives), bool,
+                            len(scene.primitives))[prim]
         box = np.stack([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
         step = np.spacing(np.abs(bounds).max(axis=(1, 2))) if n else np.zeros(0)
         coarse = np.flatnonzero(step * MIN_BOX_STEPS > (bounds[:, 1] - bounds[:, 0]).max(axis=1))
         return cls(bounds=_frozen(bounds), cast=_frozen(cast), receive=_frozen(receive),
-                   primitive=_frozen(prim), planes=planes, box=_frozen(box),
+                   primitive=_frozen(prim), unlit=_frozen(unlit), planes=planes,
+                   box=_frozen(box),
                    coarse=_frozen(coarse), _source=_source(scene))
 
     def patches(self) -> tuple[np.ndarray, np.ndarray]:

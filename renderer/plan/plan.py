@@ -236,6 +236,10 @@ class RenderPlan:
         :data:`~.shadow_region.MIN_REGION_PIXELS` camera pixels or past
         :data:`~.shadow_region.MAX_SPLIT_RECEIVERS` visible receivers (lookups on every
         receiver), and without any map (no lookup anywhere).
+    unlit_receivers : int
+        Receiving instances of unlit materials left out of the maps' receivers: their colour
+        shows no shadow and no ``visibility`` output asks for it
+        (:func:`.context.shown_receivers`).
     """
 
     camera: Camera
@@ -248,6 +252,7 @@ class RenderPlan:
     warnings: list[str] = field(default_factory=list)
     fit: str = "view"
     shadow_region: ShadowRegion | None = None
+    unlit_receivers: int = 0
 
     @property
     def map_lights(self) -> list[LightShadow]:
@@ -260,6 +265,8 @@ class RenderPlan:
                                        "skipped": {"outside_view": self.culled}}
         if self.shadow_region is not None and self.map_lights:
             camera_pass["shadow_region"] = self.shadow_region.to_dict()
+        if self.unlit_receivers:
+            camera_pass["skipped"]["unlit_receivers"] = self.unlit_receivers
         return {
             "optimize": self.optimize,
             "camera_pass": camera_pass,
@@ -329,6 +336,8 @@ def make_plan(
         warnings=[w for w in warnings if w],
         fit=params.shadows.fit,
         shadow_region=region,
+        unlit_receivers=int(np.count_nonzero(ctx.arrays.receive != ctx.receive))
+        if ctx.arrays is not None else 0,
     )
 
 
@@ -344,19 +353,22 @@ def scene_fit_key(ctx: PlanContext, scene: Scene, index: int, light: Light) -> s
     """The content key of light ``index``'s plan in a scene-fit context (``""``: not kept).
 
     What :func:`plan_light` reads there, but for the camera: the scene, the origin, the shadow
-    parameters and ``optimize``, the light. Of the camera it reads only the 'auto' map size
-    (:meth:`PlanContext.map_size_for`), which the memo checks itself (:class:`SceneFitPlan`). A
-    spot light's fit also reads the camera's position for its resolution warning, so spot
-    lights are planned every time, and so are point lights fitted with a frustum.
+    parameters and ``optimize``, the light, the receivers. Of the camera it reads only the
+    'auto' map size (:meth:`PlanContext.map_size_for`), which the memo checks itself
+    (:class:`SceneFitPlan`). A spot light's fit also reads the camera's position for its
+    resolution warning, so spot lights are planned every time, and so are point lights fitted
+    with a frustum.
     """
     if not scene.key or light.type == "spot":
         return ""
     from ..cache import parts_key
 
-    # The context's map-size bound and margin come from the shadow parameters.
+    # The context's map-size bound and margin come from the shadow parameters; its receivers
+    # from the outputs too (:func:`.context.shown_receivers`).
     return parts_key([scene.key.encode(), np.asarray(ctx.origin, np.float64).tobytes(),
                       ctx.params.shadows.model_dump_json().encode(),
-                      repr((index, ctx.optimize)).encode(), light_bytes(light)])
+                      repr((index, ctx.optimize)).encode(), light_bytes(light),
+                      np.packbits(ctx.receive).tobytes()])
 
 
 @dataclass(frozen=True)
