@@ -32,8 +32,10 @@ MODELS = ("cube.glb", "TwoCubes.glb", "BoxTextured.glb", "BoxMeshopt.glb", "Duck
 #: are mutated too: the Duck under a spot, a point and a directional light
 #: (KHR_lights_punctual), the textured box with a texture transform, a sampler and a cut-out,
 #: and the cube drawn 64 times by EXT_mesh_gpu_instancing (float translations and scales,
-#: rotations as normalized bytes).
-VARIANTS = ("Duck.glb+lights", "BoxTextured.glb+transform", "cube.glb+instancing")
+#: rotations as normalized bytes), and the Duck seen by an orthographic camera of the file
+#: (the default view) in an unlit material (KHR_materials_unlit).
+VARIANTS = ("Duck.glb+lights", "BoxTextured.glb+transform", "cube.glb+instancing",
+            "Duck.glb+ortho_unlit")
 _STRINGS = ("", "VEC2", "VEC3", "VEC4", "SCALAR", "MAT2", "MAT4", "data:,", "BLEND", "MASK",
             "x.bin", "image/png")
 _INTS = (5120, 5121, 5122, 5123, 5125, 5126, 2**31)
@@ -105,6 +107,12 @@ def _variant(name: str, models: Path) -> tuple[dict, bytes]:
         doc["samplers"] = [{"wrapS": 33648, "wrapT": 33071, "magFilter": 9729,
                             "minFilter": 9987}]
         doc["textures"][0]["sampler"] = 0
+    elif extra == "ortho_unlit":
+        doc["extensionsUsed"] = [*doc.get("extensionsUsed", []), "KHR_materials_unlit"]
+        doc["materials"][0].setdefault("extensions", {})["KHR_materials_unlit"] = {}
+        # The file's own camera, where it stands, made orthographic.
+        doc["cameras"][0] = {"type": "orthographic", "orthographic": {
+            "xmag": 375.0, "ymag": 250.0, "znear": 0.5, "zfar": 2000.0}}
     elif extra == "instancing":
         doc["extensionsUsed"] = [*doc.get("extensionsUsed", []), "EXT_mesh_gpu_instancing"]
         k = 64

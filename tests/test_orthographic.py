@@ -110,6 +110,27 @@ def test_a_files_orthographic_camera_is_used_unless_the_request_names_a_projecti
     assert persp.plan["camera"]["yfov_deg"] == 45.0
 
 
+def test_a_files_orthographic_camera_takes_its_nodes_scale():
+    """A camera under a root scaled by 0.01 (as in files converted from other formats): its
+    ymag and clip distances are in the node's units, 1/100 of them in the scene's."""
+    data = _with_camera(demo_glb(), {"type": "orthographic", "orthographic": {
+        "xmag": 300.0, "ymag": 150.0, "znear": 1.0, "zfar": 5000}})
+    (js_len,) = struct.unpack_from("<I", data, 12)
+    doc = json.loads(data[20:20 + js_len])
+    node = doc["nodes"][-1]
+    node["translation"] = [0, 1000, 0]
+    roots = doc["scenes"][doc.get("scene", 0)]["nodes"]
+    roots.remove(len(doc["nodes"]) - 1)
+    doc["nodes"].append({"scale": [0.01, 0.01, 0.01], "children": [len(doc["nodes"]) - 1]})
+    roots.append(len(doc["nodes"]) - 1)
+    scene = load_scene(make_glb(doc, data[20 + js_len + 8:]))
+    (cam,) = scene.cameras
+    assert cam.ymag == pytest.approx(1.5) and cam.aspect == pytest.approx(2.0)
+    assert (cam.znear, cam.zfar) == pytest.approx((0.01, 50.0))
+    np.testing.assert_allclose(cam.pose[:3, 3], [0, 10, 0])
+    np.testing.assert_allclose(np.linalg.svd(cam.pose[:3, :3], compute_uv=False), 1.0)
+
+
 @pytest.mark.parametrize("ymag", [0, "1", None, -0.0])
 def test_a_files_orthographic_camera_without_a_usable_ymag_is_left_out(ymag):
     scene = load_scene(_with_camera(demo_glb(), {"type": "orthographic", "orthographic": {

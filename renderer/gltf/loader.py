@@ -686,7 +686,8 @@ class _Loader:
             far = (f"node {g.names[i]!r} is {reach:.3g} units from the scene's centre, more "
                    "than float32 coordinates hold: its ")  # + what is left out
             if g.camera[i] >= 0:
-                cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]))
+                cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]),
+                                   g.world[i])
                 if cam is not None and not reach <= MAX_COORDINATE:
                     self.warnings.append(far + "camera is left out")
                 elif cam is not None:
@@ -702,7 +703,8 @@ class _Loader:
                     out_lights.append(light)
         return cameras, out_lights
 
-    def _camera(self, cam: Any, pose: np.ndarray, index: int) -> SceneCamera | None:
+    def _camera(self, cam: Any, pose: np.ndarray, index: int,
+                world: np.ndarray) -> SceneCamera | None:
         if not isinstance(cam, dict):
             return None
         kind = cam.get("type")
@@ -717,6 +719,7 @@ class _Loader:
             return float(v)
 
         yfov = ymag = aspect = None
+        scale = 1.0  # of an orthographic camera's lengths
         if kind == "perspective":
             yfov = num("yfov")
             if yfov is None or not 0 < yfov < math.pi:
@@ -744,8 +747,20 @@ class _Loader:
                     self.warnings.append(f"camera {index}: negative xmag or ymag (a mirrored "
                                          "picture): drawn unmirrored")
                 aspect = abs(xmag / ymag)
-            ymag = abs(ymag)
+            # An orthographic view's size is a length: the node's scale applies to it (a
+            # camera under a scaled root, common in converted files, as viewers draw it).
+            with np.errstate(over="ignore", invalid="ignore"):
+                scale = float(abs(np.linalg.det(world[:3, :3]))) ** (1.0 / 3.0)
+            scale = 1.0 if abs(scale - 1.0) < 1e-6 else scale  # rounding of a rotation
+            ymag = abs(ymag) * scale
+            if not 1e-30 < ymag <= MAX_COORDINATE:  # NaN included
+                self.warnings.append(f"camera {index}: its node's scale makes its ymag "
+                                     f"{ymag:.3g} units, too small or large to draw: left out")
+                return None
         znear, zfar = num("znear"), num("zfar")
+        if scale != 1.0:  # lengths along the view axis, in the node's units
+            znear = None if znear is None else znear * scale
+            zfar = None if zfar is None else zfar * scale
         # Each is optional: one that cannot be used is fitted to the scene instead.
         if znear is not None and (znear < 0 or (znear == 0 and kind == "perspective")):
             self.warnings.append(f"camera {index}: znear {znear} is not positive: fitted to the "
