@@ -60,6 +60,8 @@ def manifest_entries(models: Path, folder: Path, count: int = 200) -> list[dict[
             job["params"] = {**params, "shadows": {"fit": "scene"}}
             job["views"] = [{"eye": [3 * math.cos(a), 2.0, 3 * math.sin(a)], "target": [0, 0.3, 0]}
                             for a in (0.3, 1.9, 3.5)]
+            if k % 20 == 14:  # the last one orthographic
+                job["views"][-1].update(projection="orthographic", ymag=1.5)
         if k % 10 == 7:
             job["lights"] = [[light(k)], [light(k + 3)]]
         good.append(job)

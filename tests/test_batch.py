@@ -75,6 +75,11 @@ def test_meta_json(batch):
     assert meta["plan"]["fit"] == "scene"
     assert {"load", "light", "camera", "total"} <= set(meta["timings"])
     assert isinstance(meta["warnings"], list)
+    assert cam["projection"] == "perspective" and cam["yfov_deg"] == 45.0
+    # An orthographic view: fx and fy are pixels per scene unit.
+    ortho = json.loads((out / "job-014" / "view_002" / "meta.json").read_text())["camera"]
+    assert ortho["projection"] == "orthographic" and ortho["ymag"] == 1.5
+    assert ortho["fy"] == SIZE["height"] / 2 / 1.5 and "yfov_deg" not in ortho
 
 
 def test_meta_json_describes_the_frame_drawn(batch):
