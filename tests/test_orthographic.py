@@ -108,6 +108,16 @@ def test_a_files_orthographic_camera_is_used_unless_the_request_names_a_projecti
                                                 camera={"projection": "perspective"}))
     assert persp.plan["camera"]["projection"] == "perspective"
     assert persp.plan["camera"]["yfov_deg"] == 45.0
+    # And the other way: the file's perspective camera, seen orthographically from its place.
+    data = _with_camera(demo_glb(), {"type": "perspective", "perspective": {"yfov": 0.5}})
+    scene = load_scene(data)
+    ortho = renderer.render(scene, RenderParams(width=64, height=48,
+                                                camera={"projection": "orthographic"}))
+    assert ortho.plan["camera"]["projection"] == "orthographic"
+    np.testing.assert_allclose(ortho.plan["camera"]["eye"], [0, 10, 0], atol=1e-12)
+    cam = resolve_camera(RenderParams(camera={"projection": "orthographic"}).camera, scene, 64,
+                         48)
+    assert cam.ymag == ortho.plan["camera"]["ymag"] > 0
 
 
 def test_a_files_orthographic_camera_takes_its_nodes_scale():
