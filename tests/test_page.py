@@ -21,6 +21,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from html.parser import HTMLParser
+from urllib.parse import quote
 
 import httpx
 import numpy as np
@@ -249,7 +250,10 @@ def devtools(url: str) -> Iterator[DevToolsPage]:
                     raise RuntimeError("Chromium did not start: " + log.read().decode()[-2000:])
                 time.sleep(0.1)
             port = open(port_file).read().split()[0]
-            target = httpx.put(f"http://127.0.0.1:{port}/json/new?{url}", timeout=30).json()
+            # The page URL is the query: its own "&"s escaped, or its parameters after the
+            # first would be read as the endpoint's.
+            target = httpx.put(f"http://127.0.0.1:{port}/json/new?{quote(url, safe=':/?=')}",
+                               timeout=30).json()
             with connect(target["webSocketDebuggerUrl"], max_size=None, open_timeout=30) as ws:
                 yield DevToolsPage(ws)
         finally:
@@ -325,28 +329,39 @@ def test_drag_and_wheel_orbit_the_camera(server_url):
         assert np.abs(image2.astype(int) - image1.astype(int)).mean() > 3
 
 
-def test_an_orthographic_camera_keeps_its_projection_and_zooms_by_ymag(server_url):
-    """The orbit takes the projection of the camera the plan reports: an orthographic one is
-    sent back orthographic, and the wheel scales its ymag, not its distance."""
-    with devtools(f"{server_url}/?autorender=1&width=320&height=240") as page:
-        _render_done(page, 0)
-        n = _renders(page)
-        # As if the scene's own camera were orthographic (a file's): the page starts from it.
-        page.evaluate("(() => { const c = JSON.parse(document.getElementById('plan')"
-                      ".textContent).camera; c.projection = 'orthographic'; c.ymag = 2.0;"
-                      " delete c.yfov_deg; orbit = orbitFrom(c); requestRender(); })()")
-        sent, image0 = _render_done(page, n)
-        assert sent["camera"]["projection"] == "orthographic" and sent["camera"]["ymag"] == 2.0
-        assert "yfov_deg" not in sent["camera"]
-        plan = json.loads(page.evaluate("document.getElementById('plan').textContent"))
-        assert plan["camera"]["projection"] == "orthographic" and plan["camera"]["ymag"] == 2.0
+def test_the_projection_selector_and_an_orthographic_orbit(server_url):
+    """The projection selector asks for an orthographic camera (the whole scene in view); the
+    orbit takes its projection from the plan, the wheel then scales ymag, not the distance;
+    switching back to perspective keeps what is in view at the target's distance."""
+    with devtools(f"{server_url}/?autorender=1&width=320&height=240&projection=orthographic"
+                  ) as page:
+        first, image0 = _render_done(page, 0)
+        assert first["camera"] == {"projection": "orthographic"}
+        camera = json.loads(page.evaluate("document.getElementById('plan').textContent"))[
+            "camera"]
+        assert camera["projection"] == "orthographic" and camera["ymag"] > 0
+        ymag = camera["ymag"]
         x, y = _image_centre(page)
         n = _renders(page)
         page.mouse("mouseWheel", x, y, deltaX=0, deltaY=-300)
         zoomed, image1 = _render_done(page, n)
-        assert math.isclose(zoomed["camera"]["ymag"], 2.0 * math.exp(-0.3), rel_tol=1e-9)
-        assert zoomed["camera"]["eye"] == sent["camera"]["eye"]
+        assert zoomed["camera"]["projection"] == "orthographic"
+        assert math.isclose(zoomed["camera"]["ymag"], ymag * math.exp(-0.3), rel_tol=1e-9)
+        assert "yfov_deg" not in zoomed["camera"]
+        np.testing.assert_allclose(zoomed["camera"]["eye"], camera["eye"], rtol=1e-12)
         assert np.abs(image1.astype(int) - image0.astype(int)).mean() > 3
+
+        n = _renders(page)
+        page.evaluate("(() => { const s = document.getElementById('projection');"
+                      " s.value = 'perspective'; s.dispatchEvent(new Event('change')); })()")
+        persp, _ = _render_done(page, n)
+        assert persp["camera"]["yfov_deg"] == 45 and "ymag" not in persp["camera"]
+        target = np.array(persp["camera"]["target"])
+        distance = np.linalg.norm(np.array(persp["camera"]["eye"]) - target)
+        assert math.isclose(distance * math.tan(math.radians(22.5)), zoomed["camera"]["ymag"],
+                            rel_tol=1e-9)
+        plan = json.loads(page.evaluate("document.getElementById('plan').textContent"))
+        assert plan["camera"]["projection"] == "perspective"
 
 
 def test_light_azimuth_and_elevation_set_the_direction(server_url):
