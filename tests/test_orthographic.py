@@ -6,15 +6,13 @@ reference: the shadows, and the depth output (linear in an orthographic view's d
 
 from __future__ import annotations
 
-import json
 import math
-import struct
 
 import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from gltf_files import make_glb
+from gltf_files import make_glb, split_glb
 from shadowmap.batch.worker import camera_meta
 from shadowmap.renderer import RenderParams, load_scene
 from shadowmap.renderer import testing as T
@@ -85,9 +83,7 @@ def test_an_orthographic_camera_without_ymag_shows_the_whole_scene(demo):
 
 def _with_camera(glb: bytes, camera: dict) -> bytes:
     """``glb`` with ``camera`` on a new root node 10 units up, looking down."""
-    (js_len,) = struct.unpack_from("<I", glb, 12)
-    doc = json.loads(glb[20:20 + js_len])
-    blob = glb[20 + js_len + 8:]
+    doc, blob = split_glb(glb)
     doc["cameras"] = [camera]
     doc["nodes"].append({"camera": 0, "translation": [0, 10, 0],
                          "rotation": [-math.sqrt(0.5), 0, 0, math.sqrt(0.5)]})
@@ -125,15 +121,14 @@ def test_a_files_orthographic_camera_takes_its_nodes_scale():
     ymag and clip distances are in the node's units, 1/100 of them in the scene's."""
     data = _with_camera(demo_glb(), {"type": "orthographic", "orthographic": {
         "xmag": 300.0, "ymag": 150.0, "znear": 1.0, "zfar": 5000}})
-    (js_len,) = struct.unpack_from("<I", data, 12)
-    doc = json.loads(data[20:20 + js_len])
+    doc, blob = split_glb(data)
     node = doc["nodes"][-1]
     node["translation"] = [0, 1000, 0]
     roots = doc["scenes"][doc.get("scene", 0)]["nodes"]
     roots.remove(len(doc["nodes"]) - 1)
     doc["nodes"].append({"scale": [0.01, 0.01, 0.01], "children": [len(doc["nodes"]) - 1]})
     roots.append(len(doc["nodes"]) - 1)
-    scene = load_scene(make_glb(doc, data[20 + js_len + 8:]))
+    scene = load_scene(make_glb(doc, blob))
     (cam,) = scene.cameras
     assert cam.ymag == pytest.approx(1.5) and cam.aspect == pytest.approx(2.0)
     assert (cam.znear, cam.zfar) == pytest.approx((0.01, 50.0))
