@@ -194,6 +194,41 @@ def test_spot_over_bare_ground_has_no_caster_in_frustum():
     assert light(T.caster_on_ground(), narrow).reason == "no_caster_in_frustum"
 
 
+# -- the camera pass's order ------------------------------------------------------------------
+
+
+def _boxes_at(xz: list[tuple[float, float]]) -> Scene:
+    """Unit boxes centred at (x, 0.5, z), listed in the order given."""
+    import trimesh
+
+    meshes = [trimesh.creation.box(extents=(1, 1, 1)) for _ in xz]
+    for m, (x, z) in zip(meshes, xz, strict=True):
+        m.apply_translation((x, 0.5, z))
+    return scene_from_meshes(meshes)
+
+
+def test_visible_instances_are_drawn_nearest_first():
+    # Listed far, near, middle from an eye on the +x axis: drawn near, middle, far, so that
+    # nothing is shaded before what hides it.
+    scene = _boxes_at([(-6.0, 0.0), (4.0, 0.0), (0.0, 0.0)])
+    camera = {"eye": [20.0, 0.5, 0.0], "target": [0.0, 0.5, 0.0]}
+    p = plan(scene, camera, [SUN])
+    assert p.visible == [1, 2, 0]
+    assert p.to_dict()["camera_pass"]["order"] == "near_first"
+    # An orthographic view orders by depth along its axis: a box off to the side (12.2 from
+    # the eye, 10 deep) comes before one 11 from it on the axis (11 deep).
+    side = _boxes_at([(9.0, 0.0), (10.0, 7.0)])
+    assert plan(side, {**camera, "yfov_deg": 90.0}, [SUN]).visible == [0, 1]
+    ortho_view = {**camera, "projection": "orthographic", "ymag": 12.0}
+    assert plan(side, ortho_view, [SUN]).visible == [1, 0]
+    # Equal distances keep the file's order.
+    twins = _boxes_at([(0.0, 0.0), (0.0, 0.0), (5.0, 0.0), (5.0, 0.0)])
+    assert plan(twins, camera, [SUN]).visible == [2, 3, 0, 1]
+    # Without optimize: every instance, in the file's order.
+    off = plan(scene, camera, [SUN], optimize=False)
+    assert off.visible == [0, 1, 2] and off.to_dict()["camera_pass"]["order"] == "file"
+
+
 # -- what the fits leave out ------------------------------------------------------------------
 
 

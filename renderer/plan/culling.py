@@ -27,6 +27,34 @@ def view_planes(camera: Camera, origin: np.ndarray) -> np.ndarray:
     return frustum_planes(camera.projection @ camera.view_from(origin))
 
 
+def near_first(ctx: PlanContext, instances: np.ndarray) -> np.ndarray:
+    """``instances`` in the order the camera pass draws them: nearest box centre first.
+
+    A surface drawn before what hides it is shaded and then overwritten; drawn after, the depth
+    test drops its fragments before the fragment shader runs (a software rasterizer skips every
+    block of pixels that none passes). Near first leaves the least to overwrite, and a ground or
+    a wall, whose centre lies behind what stands on it, comes after it.
+
+    Parameters
+    ----------
+    ctx : PlanContext
+    instances : ndarray, shape (V,), intp
+        Scene instance indices.
+
+    Returns
+    -------
+    ndarray, shape (V,), intp
+        The same indices, by the distance of their box centre from the eye (orthographic: its
+        depth along the view axis), ties in the order given.
+    """
+    rel = ctx.centres[instances] - ctx.cam_pos
+    if ctx.flat_distance is None:
+        key = np.einsum("ij,ij->i", rel, rel)
+    else:
+        key = rel @ np.asarray(ctx.camera.forward, np.float64)
+    return instances[np.argsort(key, kind="stable")]
+
+
 # Directions whose most extreme receivers are tried first as witnesses that a plane has a
 # receiver behind it (the 26 neighbours of a grid cell): one such receiver settles the test, and
 # a large receiver (a ground, a wall) is extreme along some of them.

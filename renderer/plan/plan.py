@@ -23,7 +23,7 @@ import numpy as np
 
 from .cascades import CascadeFit, plan_cascades
 from .context import MIN_AUTO_MAP, PlanContext, Toward
-from .culling import select_casters
+from .culling import near_first, select_casters
 from .fit import (
     DEPTH_STEP_WARN_TEXELS,
     MIN_MAP_NEAR_SHARE,
@@ -217,7 +217,8 @@ class RenderPlan:
     camera : Camera
     origin : ndarray, shape (3,)
     visible : list of int
-        Instances the camera pass draws.
+        Instances the camera pass draws, in its order: nearest first with ``optimize``
+        (:func:`.culling.near_first`), else the file's.
     culled : int
         Instances it leaves out (outside the view).
     lights : list of LightShadow
@@ -262,6 +263,7 @@ class RenderPlan:
 
     def to_dict(self) -> dict[str, Any]:
         camera_pass: dict[str, Any] = {"drawn": len(self.visible),
+                                       "order": "near_first" if self.optimize else "file",
                                        "skipped": {"outside_view": self.culled}}
         if self.shadow_region is not None and self.map_lights:
             camera_pass["shadow_region"] = self.shadow_region.to_dict()
@@ -306,7 +308,10 @@ def make_plan(
     """
     ctx = PlanContext.build(scene, camera, origin, params)
     n = len(scene.instances)
-    visible = np.flatnonzero(ctx.in_view).tolist() if params.optimize else list(range(n))
+    # With optimize: what the camera may see, nearest first (fewer pixels shaded twice);
+    # without: every instance, in the file's order.
+    visible = (near_first(ctx, np.flatnonzero(ctx.in_view)).tolist() if params.optimize
+               else list(range(n)))
     if params.shadows.fit == "scene":
         # Maps over every receiver, whatever the camera sees: one map per light, no cascades.
         shadow_ctx = ctx.scene_fit()
