@@ -73,8 +73,13 @@ def png_bytes(image: np.ndarray) -> bytes:
 
 def visibility_u16(v: np.ndarray) -> np.ndarray:
     """Shadow factor in [0, 1] -> uint16 ``round(v * 65535)``; NaN (no geometry) -> 0."""
-    v = np.nan_to_num(v.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0)
-    return np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16)
+    # In float64, in place: fmax and fmin take the number over a NaN, so NaN and -inf end at 0
+    # and +inf at 65535, as clipping the factor to [0, 1] first would (the same values).
+    f = np.multiply(v, 65535.0, dtype=np.float64)
+    np.fmax(f, 0.0, out=f)
+    np.fmin(f, 65535.0, out=f)
+    np.rint(f, out=f)
+    return f.astype(np.uint16)
 
 
 def depth_u16(d: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
@@ -87,10 +92,16 @@ def depth_u16(d: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
         The depth range mapped to 0 and 65534 (None when the image has no geometry).
     """
     finite = np.isfinite(d)
-    out = np.full(d.shape, 65535, np.uint16)
     if not finite.any():
-        return out, None, None
-    near, far = float(d[finite].min()), float(d[finite].max())
+        return np.full(d.shape, 65535, np.uint16), None, None
+    near = float(np.min(d, where=finite, initial=np.inf))
+    far = float(np.max(d, where=finite, initial=-np.inf))
     span = far - near if far > near else 1.0
-    out[finite] = np.rint((d[finite].astype(np.float64) - near) / span * 65534.0).astype(np.uint16)
-    return out, near, far
+    # Over the whole image in place (no gathering of the finite pixels), then the others set.
+    f = np.subtract(d, near, dtype=np.float64)
+    f /= span
+    f *= 65534.0
+    np.rint(f, out=f)
+    np.putmask(f, ~finite, 65535.0)
+    return f.astype(np.uint16), near, far
+

@@ -37,6 +37,38 @@ def test_16_bit_encodings():
     assert near is None and far is None and (empty == 65535).all()
 
 
+def test_16_bit_encodings_equal_their_formulas():
+    """The in-place conversions give exactly round(clip(v, 0, 1) * 65535) and
+    round((d - near) / (far - near) * 65534) in float64, on random images with NaN, infinities
+    and values that fall halfway between two levels."""
+    from shadowmap.app.encode import depth_u16, visibility_u16
+
+    rng = np.random.default_rng(11)
+    for k in range(60):
+        v = (rng.random((24, 32)) * (1 + k % 3) - 0.2 * (k % 2)).astype(np.float32)
+        spots = rng.permutation(v.size)[:40]
+        v.flat[spots[:8]] = np.nan
+        v.flat[spots[8:12]] = np.inf
+        v.flat[spots[12:16]] = -np.inf
+        v.flat[spots[16:40]] = (rng.integers(0, 65535, 24) + 0.5) / 65535  # halfway
+        clean = np.nan_to_num(v.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0)
+        expected = np.rint(np.clip(clean, 0.0, 1.0) * 65535.0).astype(np.uint16)
+        assert np.array_equal(visibility_u16(v), expected)
+
+        d = (rng.random((24, 32)) * 10 + 1).astype(np.float32)
+        d.flat[spots[:8]] = np.nan
+        d.flat[spots[8:10]] = np.inf if k % 2 else np.nan
+        finite = np.isfinite(d)
+        near, far = float(d[finite].min()), float(d[finite].max())
+        want = np.full(d.shape, 65535, np.uint16)
+        want[finite] = np.rint((d[finite].astype(np.float64) - near) / (far - near)
+                               * 65534.0).astype(np.uint16)
+        got, got_near, got_far = depth_u16(d)
+        assert (got_near, got_far) == (near, far) and np.array_equal(got, want)
+    flat, near, far = depth_u16(np.full((2, 3), 4.0, np.float32))  # one depth: span 1
+    assert (near, far) == (4.0, 4.0) and (flat == 0).all()
+
+
 def test_unexpected_error_is_json():
     """Handlers turn any exception into the JSON error shape (in-process, no GL needed)."""
     import asyncio
@@ -88,3 +120,4 @@ def test_png_round_trips_with_either_compressor(monkeypatch, shape, dtype):
         back = np.asarray(Image.open(io.BytesIO(data)))
         assert back.dtype == a.dtype or dtype == np.uint16  # Pillow reads 16-bit grey as I;16
         assert np.array_equal(back.astype(np.int64), a.astype(np.int64))
+
