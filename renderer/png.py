@@ -104,4 +104,3 @@ def depth_u16(d: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
     np.rint(f, out=f)
     np.putmask(f, ~finite, 65535.0)
     return f.astype(np.uint16), near, far
-
