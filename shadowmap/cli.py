@@ -433,6 +433,8 @@ def _batch(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         return _fail("--workers must be at least 1")
+    if args.max_job_renders < 1:
+        return _fail("--max-job-renders must be at least 1")
     if args.ray is not None:
         try:
             import ray  # noqa: F401
@@ -442,7 +444,8 @@ def _batch(args: argparse.Namespace) -> int:
     try:
         report = render_many(args.manifest, args.out, workers=args.workers, ray=args.ray,
                              actors=args.workers if args.ray is not None else None,
-                             timeout=args.timeout, progress=progress, resume=not args.force)
+                             timeout=args.timeout, progress=progress, resume=not args.force,
+                             max_job_renders=args.max_job_renders)
     except OSError as exc:
         return _fail(f"{exc.filename or args.manifest}: {exc.strerror or exc}")
     except (RuntimeError, RenderError) as exc:
@@ -524,6 +527,7 @@ SERVE_SETTINGS: dict[str, tuple[type, str]] = {
 
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
+    from .batch.manifest import MAX_JOB_RENDERS
     from .renderer.params import EXAMPLE_PARAMS
 
     parser = argparse.ArgumentParser(
@@ -595,6 +599,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "or a cluster address (ray://head:10001)")
     b.add_argument("--timeout", type=float, default=None,
                    help="seconds one job may run before its worker is killed")
+    b.add_argument("--max-job-renders", type=int, default=MAX_JOB_RENDERS, metavar="N",
+                   help="renders one job may ask for (views x light lists); a job asking for "
+                   f"more is recorded as an error (default {MAX_JOB_RENDERS})")
     b.add_argument("--force", action="store_true",
                    help="render every job again, even those already done")
     b.add_argument("--quiet", action="store_true",

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from batch_jobs import (
@@ -23,7 +24,7 @@ from batch_jobs import (
     write_manifest,
 )
 from shadowmap.batch import render_many
-from shadowmap.batch.manifest import load_manifest
+from shadowmap.batch.manifest import SceneHasher, load_manifest, parse_job
 
 pytestmark = pytest.mark.gl
 
@@ -233,6 +234,82 @@ def test_cli(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "shadowmap", "batch", str(tmp_path / "nope"),
                           "--out", str(tmp_path / "o")], capture_output=True, text=True)
     assert bad.returncode == 2 and "shadowmap: error:" in bad.stderr
+
+
+def test_renders_per_job_are_limited(tmp_path):
+    """Views times light lists over ``max_job_renders`` is an error record, found before any
+    variation is validated or rendered; the other jobs run."""
+    views = [{"eye": [4, 3, 4 + k], "target": [0, 0, 0]} for k in range(3)]
+    lights = [[{"type": "directional", "direction": [-1, -2, -1 - k]}] for k in range(2)]
+    entries = [
+        {"id": "six", "scene": {"builtin": "demo"}, "params": SIZE, "views": views,
+         "lights": lights},
+        # One more view, and an invalid one: the count is refused first.
+        {"id": "eight", "scene": {"builtin": "demo"}, "params": SIZE,
+         "views": views + [{"eye": "up"}], "lights": lights},
+        {"id": "views", "scene": {"builtin": "demo"}, "params": SIZE, "views": views * 3},
+    ]
+    path = write_manifest(tmp_path / "m.jsonl", entries)
+    jobs = {j.id: j for j in load_manifest(path, max_job_renders=6)}
+    assert jobs["six"].error is None and len(jobs["six"].variations()) == 6
+    for name, text in (("eight", "8 renders (4 views x 2 light lists)"),
+                       ("views", "9 renders (9 views x 1 light lists)")):
+        err = jobs[name].error
+        assert err is not None and err.code == "limit_exceeded", name
+        assert err.extra == {"limit": "max_job_renders"} and text in err.detail
+        assert "over the limit of 6 per job" in err.detail
+    assert load_manifest(path)[1].error.code == "invalid_params"  # under the default limit
+    report = render_many(path, tmp_path / "out", workers=1, max_job_renders=6)
+    recs = {r["id"]: r for r in report.records}
+    assert recs["six"]["status"] == "ok" and recs["six"]["variations"] == 6
+    assert recs["eight"]["status"] == recs["views"]["status"] == "error"
+    assert recs["eight"]["error"]["limit"] == "max_job_renders"
+    assert not (tmp_path / "out" / "eight").exists()
+    run = [sys.executable, "-m", "shadowmap", "batch", str(path), "--out", str(tmp_path / "o"),
+           "--quiet"]
+    proc = subprocess.run(run + ["--max-job-renders", "8"], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "1 ok, 2 error, 0 failed" in proc.stdout
+    assert "error: views: limit_exceeded: the job asks for 9 renders" in proc.stderr
+    assert "error: eight: invalid_params" in proc.stderr
+    bad = subprocess.run(run + ["--max-job-renders", "0"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "--max-job-renders must be at least 1" in bad.stderr
+
+
+def test_entries_from_python(tmp_path, models):
+    """Entries given from Python may hold what the library takes (numpy values, tuples, sets,
+    paths) and hash as the same job written as JSON; what is not JSON data is an error record,
+    and so is nesting too deep, in an entry or a manifest line, not an exception."""
+    plain = {"id": "j", "scene": str(models / "Duck.glb"),
+             "params": {"width": 32, "height": 24, "outputs": ["color", "depth"]},
+             "views": [{"eye": [3.0, 2.0, 4.0], "target": [0, 0, 0]}]}
+    numpy_ = {"id": "j", "scene": models / "Duck.glb",
+              "params": {"width": np.int64(32), "height": 24, "outputs": {"depth", "color"}},
+              "views": ({"eye": np.array([3.0, 2.0, 4.0]), "target": (0, 0, 0)},)}
+    hasher = SceneHasher()
+    jobs = [parse_job(e, tmp_path) for e in (plain, numpy_)]
+    assert [j.error for j in jobs] == [None, None]
+    assert hasher.hash_inputs(jobs[0]) == hasher.hash_inputs(jobs[1])
+    assert jobs[1].params["outputs"] == ["color", "depth"] and jobs[1].views == plain["views"]
+    deep: list = []
+    inner = deep
+    for _ in range(5000):
+        inner.append([])
+        inner = inner[0]
+    for entry, text in (({**plain, "params": {"width": object()}},
+                         "params must be JSON data (objects, lists, strings, numbers, booleans, "
+                         "null): values of type object are not JSON data"),
+                        ({**plain, "views": [{"eye": deep}]}, "views nests too deep"),
+                        ({**plain, "scene": "a\0b.glb"}, "scene must be a path")):
+        job = parse_job(entry, tmp_path)
+        assert job.error is not None and job.error.code == "invalid_job"
+        assert text in job.error.detail
+        hasher.hash_inputs(job)  # an error job is hashed and recorded too
+    path = tmp_path / "m.jsonl"
+    path.write_text('{"id": "deep", "params": ' + "[" * 100_000 + "]" * 100_000 + "}\n")
+    [job] = load_manifest(path)
+    assert job.error is not None and job.error.detail == "line 1 is not JSON: it nests too deep"
 
 
 def test_library_does_not_import_batch():

@@ -24,7 +24,7 @@ from shadowmap.renderer import Limits
 
 from .errors import JobError
 from .local import LocalPool, default_workers
-from .manifest import Job, SceneHasher, SceneRef, load_manifest, parse_job
+from .manifest import MAX_JOB_RENDERS, Job, SceneHasher, SceneRef, load_manifest, parse_job
 from .results import ResultsLog, clean_partial, write_job_files
 from .worker import JobOutcome, Task
 
@@ -79,12 +79,13 @@ class BatchReport:
 
 
 def _jobs(jobs: Iterable[Job | dict[str, Any]] | str | Path, base_dir: Path,
-          limits: Limits) -> list[Job]:
+          limits: Limits, max_job_renders: int) -> list[Job]:
     if isinstance(jobs, (str, Path)):
-        return load_manifest(jobs, limits)
+        return load_manifest(jobs, limits, max_job_renders)
     out = []
     for i, job in enumerate(jobs, start=1):
-        out.append(job if isinstance(job, Job) else parse_job(job, base_dir, i, limits))
+        out.append(job if isinstance(job, Job)
+                   else parse_job(job, base_dir, i, limits, max_job_renders))
     from .manifest import _unique_ids
 
     return _unique_ids(out)
@@ -103,7 +104,8 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
                 limits: Limits | None = None, timeout: float | None = None,
                 platform: str | None = None, resume: bool = True,
                 base_dir: str | Path | None = None,
-                progress: Progress | None = None) -> BatchReport:
+                progress: Progress | None = None,
+                max_job_renders: int = MAX_JOB_RENDERS) -> BatchReport:
     """Render every job to ``out_dir/<job id>/`` and record each in ``out_dir/results.jsonl``.
 
     Parameters
@@ -123,6 +125,9 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
         left open for the caller.
     limits : Limits, optional
         What a job may ask for; over a limit, the job is an ``error`` record.
+    max_job_renders : int
+        Renders one job may ask for (its views times its light lists); a job asking for more
+        is an ``error`` record (``limit_exceeded``), refused before any of them is validated.
     timeout : float, optional
         Seconds one job may run before its worker is killed (tried once more, then ``failed``).
     platform : {"egl", "osmesa"}, optional
@@ -148,7 +153,8 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
     t0 = time.perf_counter()
     limits = limits or Limits()
     out = Path(out_dir)
-    job_list = _jobs(jobs, Path(base_dir) if base_dir is not None else Path.cwd(), limits)
+    job_list = _jobs(jobs, Path(base_dir) if base_dir is not None else Path.cwd(), limits,
+                     max_job_renders)
     hasher = SceneHasher()
     for job in job_list:
         hasher.hash_inputs(job)

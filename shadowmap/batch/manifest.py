@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from shadowmap.renderer import Limits, RenderParams, ShadowMapError
 from shadowmap.renderer.cache import content_key
 from shadowmap.renderer.errors import SceneError
@@ -44,13 +46,17 @@ from shadowmap.renderer.scene import gltf_resources
 
 from .errors import JobError, error_of
 
-__all__ = ["Job", "SceneRef", "Variation", "load_manifest", "parse_job"]
+__all__ = ["MAX_JOB_RENDERS", "Job", "SceneRef", "Variation", "load_manifest", "parse_job"]
 
 #: Bumped when the files a job writes change, so that a resumed batch renders old jobs again.
 OUTPUT_FORMAT = 1
 #: Job ids name folders: letters, digits, ``.``, ``_``, ``-``; not starting with a dot.
 _ID = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}")
 _JOB_FIELDS = {"id", "scene", "params", "views", "lights"}
+#: Renders one job may ask for by default (its views times its light lists): every one is
+#: validated before the batch starts and gets its own folder, so a short manifest line must not
+#: expand into millions of them (``render_many(max_job_renders=...)``, ``--max-job-renders``).
+MAX_JOB_RENDERS = 10_000
 
 
 @dataclass(frozen=True)
@@ -213,10 +219,12 @@ def _errors(exc: ValueError) -> list[dict[str, Any]]:
 
 
 def parse_job(entry: object, base_dir: Path, line: int | None = None,
-              limits: Limits | None = None) -> Job:
+              limits: Limits | None = None, max_job_renders: int = MAX_JOB_RENDERS) -> Job:
     """A job from one manifest entry (a decoded JSON line, or a dict given to ``render_many``).
 
-    Never raises for bad input: the returned job then carries :attr:`Job.error`.
+    Never raises for bad input: the returned job then carries :attr:`Job.error`; one asking
+    for more than ``max_job_renders`` renders (views times light lists) is refused before any of
+    them is validated (``limit_exceeded``, limit ``max_job_renders``).
     """
     default_id = f"line-{line}" if line is not None else "job"
     if not isinstance(entry, dict):
@@ -234,11 +242,19 @@ def parse_job(entry: object, base_dir: Path, line: int | None = None,
             raise JobError("invalid_job", f"unknown field(s) {', '.join(unknown)}; a job has "
                            f"{', '.join(sorted(_JOB_FIELDS))}")
         job.scene = _scene_ref(entry.get("scene"), base_dir)
-        params = entry.get("params", {})
+        params = _plain(entry.get("params", {}), "params")
         if not isinstance(params, dict):
             raise JobError("invalid_params", "params must be a JSON object")
         job.params = params
         views, lights = entry.get("views"), entry.get("lights")
+        # Counted before anything is copied or validated: a short line can ask for millions.
+        n_views = len(views) if isinstance(views, (list, tuple)) else 1
+        n_lights = len(lights) if isinstance(lights, (list, tuple)) else 1
+        if n_views * n_lights > max_job_renders:
+            raise JobError("limit_exceeded", f"the job asks for {n_views * n_lights} renders "
+                           f"({n_views} views x {n_lights} light lists), over the limit of "
+                           f"{max_job_renders} per job", limit="max_job_renders")
+        views, lights = _plain(views, "views"), _plain(lights, "lights")
         if views is not None and not (isinstance(views, list) and views
                                       and all(isinstance(v, dict) for v in views)):
             raise JobError("invalid_job", "views must be a non-empty list of camera objects")
@@ -252,20 +268,54 @@ def parse_job(entry: object, base_dir: Path, line: int | None = None,
     return job
 
 
+def _plain(value: Any, what: str) -> Any:
+    """``value`` as JSON data, which a job's hash and ``meta.json`` are made of.
+
+    A manifest line is JSON already; an entry given from Python may hold what the library
+    takes too: numpy arrays and scalars (as lists and numbers), tuples (as lists) and sets (as
+    sorted lists: a set's order differs from one run to the next, and the hash must not).
+
+    Raises
+    ------
+    JobError
+        ``invalid_job``: another type, or nesting too deep to encode.
+    """
+    def default(o: Any) -> Any:
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        if isinstance(o, np.generic):
+            return o.item()
+        if isinstance(o, (set, frozenset)):
+            return sorted(o, key=lambda v: json.dumps(v, sort_keys=True, default=default))
+        raise TypeError(f"values of type {type(o).__name__} are not JSON data")
+
+    try:
+        return json.loads(json.dumps(value, default=default))
+    except RecursionError:
+        raise JobError("invalid_job", f"{what} nests too deep") from None
+    except (TypeError, ValueError) as exc:
+        raise JobError("invalid_job", f"{what} must be JSON data (objects, lists, strings, "
+                       f"numbers, booleans, null): {exc}") from None
+
+
 def _scene_ref(value: object, base_dir: Path) -> SceneRef:
     if isinstance(value, dict):
         if value == {"builtin": "demo"}:
             return SceneRef(builtin="demo")
-        raise JobError("invalid_job", f"unknown scene {json.dumps(value)}: give a path or "
-                       '{"builtin": "demo"}')
-    if not isinstance(value, str) or not value:
+        raise JobError("invalid_job", f"unknown scene {json.dumps(_plain(value, 'scene'))}: "
+                       'give a path or {"builtin": "demo"}')
+    if isinstance(value, os.PathLike):
+        value = os.fspath(value)
+    if not isinstance(value, str) or not value or "\0" in value:
         raise JobError("invalid_job", "scene must be a path (relative to the manifest) or "
                        '{"builtin": "demo"}')
     return SceneRef(path=(base_dir / value).resolve())
 
 
-def load_manifest(path: str | Path, limits: Limits | None = None) -> list[Job]:
-    """Every job of a JSON Lines manifest, in order (bad lines as jobs with an error).
+def load_manifest(path: str | Path, limits: Limits | None = None,
+                  max_job_renders: int = MAX_JOB_RENDERS) -> list[Job]:
+    """Every job of a JSON Lines manifest, in order (bad lines as jobs with an error; see
+    :func:`parse_job` for ``limits`` and ``max_job_renders``).
 
     Raises
     ------
@@ -282,11 +332,12 @@ def load_manifest(path: str | Path, limits: Limits | None = None) -> list[Job]:
                 continue
             try:
                 entry = json.loads(text, parse_constant=_no_constants)
-            except ValueError as exc:
+            except (ValueError, RecursionError) as exc:
+                why = "it nests too deep" if isinstance(exc, RecursionError) else str(exc)
                 jobs.append(Job(f"line-{n}", line=n,
-                                error=JobError("invalid_job", f"line {n} is not JSON: {exc}")))
+                                error=JobError("invalid_job", f"line {n} is not JSON: {why}")))
                 continue
-            jobs.append(parse_job(entry, base, n, limits))
+            jobs.append(parse_job(entry, base, n, limits, max_job_renders))
     return _unique_ids(jobs)
 
 
