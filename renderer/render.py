@@ -47,7 +47,14 @@ from .limits import (
 from .params import RenderParams
 from .plan import RenderPlan, make_plan
 from .plan.plan import SceneFitPlan, light_bytes
-from .scene import Instance, Scene, gltf_resources, is_trimesh, load_scene, scene_from_trimesh
+from .scene import (
+    Instance,
+    Scene,
+    is_trimesh,
+    load_scene,
+    read_source,
+    scene_from_trimesh,
+)
 
 if TYPE_CHECKING:
     from .gl.resources import GpuScene
@@ -319,16 +326,8 @@ class Renderer:
             scene = scene_from_trimesh(source)
             check_scene(scene, self.limits)
             return scene
-        if isinstance(source, (str, Path)):
-            try:
-                data = Path(source).read_bytes()
-            except OSError as exc:
-                raise SceneError(f"cannot read {source}: {exc.strerror}") from None
-            file_type = file_type or Path(source).suffix
-            if resources is None:
-                resources = gltf_resources(source, data, self.limits.max_request_bytes)
-        else:
-            data = bytes(source)
+        data, file_type, resources = read_source(source, file_type, resources,
+                                                 self.limits.max_request_bytes)
         key = content_key(data, resources)
         scene, _, _ = self.scenes.get_or_make(key, lambda: load_scene(
             data, file_type=file_type, resources=resources, limits=self.limits, key=key))

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import posixpath
 import threading
 import weakref
@@ -47,6 +48,8 @@ BLEND_SHADOW_CUTOFF = 0.5
 #: scene's centre) and in the reference's normalised frame, so the plane never ties with a
 #: bottom face.
 GROUND_GAP = 1e-6
+#: The largest float32, the type of positions in glTF and on the GPU.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True, eq=False)
@@ -664,6 +667,11 @@ def _primitive_from_trimesh(mesh: trimesh.Trimesh, name: str) -> Primitive:
         raise SceneError(f"mesh {name!r} has indices outside its vertex array")
     if not np.all(np.isfinite(verts)):
         raise SceneError(f"mesh {name!r} has NaN or infinite vertex positions")
+    # Positions are float32 on the GPU, as in glTF: past its range they would turn infinite.
+    largest = float(np.abs(verts).max(initial=0.0))
+    if largest > FLOAT32_MAX:
+        raise SceneError(f"mesh {name!r} has vertex positions beyond float32's range "
+                         f"({largest:.3g}; at most {FLOAT32_MAX:.3g})")
     material, uv, colors = _material(mesh.visual)
     if uv is not None and len(uv) != len(verts):
         uv, material = None, dataclasses.replace(material, texture=None)
@@ -729,6 +737,42 @@ def world_bounds(local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return world_bounds_many(local, matrix[None])[0]
 
 
+def read_source(source: object, file_type: str | None, resources: Mapping[str, bytes] | None,
+                max_bytes: int | None = None
+                ) -> tuple[bytes, str | None, Mapping[str, bytes] | None]:
+    """A scene file's bytes, its type hint and its external files, from what a caller gave.
+
+    A path (``str`` or ``os.PathLike``) is read, its suffix is the type hint unless
+    ``file_type`` is given, and a ``.gltf``'s files are read from beside it unless
+    ``resources`` is given (:func:`gltf_resources`, within ``max_bytes``); anything else that
+    holds bytes (``bytes``, ``bytearray``, ``memoryview``, an array) is the file itself.
+
+    Raises
+    ------
+    SceneError
+        The file cannot be read, or ``source`` is neither a path nor bytes (``None``, a
+        number, a trimesh point cloud, ...).
+    """
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise SceneError(f"cannot read {path}: {exc.strerror}") from None
+        except ValueError as exc:  # a NUL in the path
+            raise SceneError(f"cannot read {str(path)!r}: {exc}") from None
+        if resources is None:
+            resources = gltf_resources(path, data, max_bytes)
+        return data, file_type or path.suffix, resources
+    try:
+        view = memoryview(source)  # type: ignore[arg-type]
+    except TypeError:
+        raise SceneError(f"cannot load a scene from a value of type {type(source).__name__}: "
+                         "give a path, a .glb or .gltf file's bytes, a Scene, or a trimesh "
+                         "Trimesh or Scene") from None
+    return view.tobytes(), file_type, resources
+
+
 def load_scene(
     source: str | Path | bytes,
     *,
@@ -776,17 +820,8 @@ def load_scene(
     from .gltf.loader import load_gltf
     from .gltf.reader import read_container
 
-    if isinstance(source, (str, Path)):
-        path = Path(source)
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise SceneError(f"cannot read {path}: {exc.strerror}") from None
-        file_type = file_type or path.suffix
-        if resources is None:
-            resources = gltf_resources(path, data, limits.max_request_bytes if limits else None)
-    else:
-        data = bytes(source)
+    data, file_type, resources = read_source(source, file_type, resources,
+                                             limits.max_request_bytes if limits else None)
     try:
         document = read_container(data, file_type)
         resolver = MappingResolver(resources)

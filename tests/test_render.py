@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import load_model
-from shadowmap.renderer import RenderError, RenderParams, load_scene
+from shadowmap.renderer import RenderError, RenderParams, SceneError, load_scene
 from shadowmap.renderer import testing as T
 from shadowmap.renderer.demo import demo_glb
 
@@ -222,6 +222,16 @@ def test_timings_cover_every_stage(renderer, demo):
     for stage in ("load", "upload", "plan", "light", "camera", "readback", "total"):
         assert r.timings[stage] >= 0
     assert r.info["platform"] in ("egl", "osmesa")
+
+
+def test_sources_neither_paths_nor_bytes_are_scene_errors(renderer):
+    """Renderer.load reads its source as load_scene does: None or a point cloud is a SceneError
+    naming what it got (it used to be a TypeError from bytes())."""
+    import trimesh
+
+    for source, text in ((None, "NoneType"), (trimesh.PointCloud(np.zeros((3, 3))), "PointCloud")):
+        with pytest.raises(SceneError, match=f"from a value of type {text}: give a path"):
+            renderer.render(source, {"width": 16, "height": 12})
 
 
 def test_close_is_idempotent_and_final():

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import base64
 import json
+from pathlib import PurePosixPath
 
 import numpy as np
 import pytest
+import trimesh
 
 from shadowmap.renderer import LimitError, Limits, SceneError, load_scene
 from shadowmap.renderer.scene import MappingResolver
@@ -24,6 +26,26 @@ def test_every_binary_model_loads(models, name):
     for prim in scene.primitives:
         assert prim.normals.shape == prim.positions.shape
         np.testing.assert_allclose(np.linalg.norm(prim.normals, axis=1), 1.0, atol=1e-3)
+
+
+def test_sources_are_paths_or_bytes(models):
+    """A path (str or os.PathLike) or anything holding bytes loads; other values, a NUL in a
+    path, and trimesh geometry that is not a mesh or scene are SceneErrors, not crashes."""
+    path = models / "Duck.glb"
+    data = path.read_bytes()
+    key = load_scene(data).key
+    for source in (str(path), PurePosixPath(path), bytearray(data), memoryview(data),
+                   np.frombuffer(data, np.uint8)):
+        assert load_scene(source).key == key, type(source)
+    for source, text in ((None, "NoneType"), (10**12, "int"), (1.5, "float"),
+                         (trimesh.PointCloud(np.zeros((3, 3))), "PointCloud")):
+        with pytest.raises(SceneError, match=f"cannot load a scene from a value of type {text}: "
+                           "give a path, a .glb or .gltf file's bytes"):
+            load_scene(source)
+    with pytest.raises(SceneError, match="embedded null byte"):
+        load_scene(str(path) + "\0")
+    with pytest.raises(SceneError, match="Is a directory"):
+        load_scene(models)
 
 
 def test_node_transforms_are_applied(models):

@@ -72,6 +72,11 @@ def test_refusals_and_warnings():
                           process=False)
     with pytest.raises(SceneError, match="NaN"):
         scene_from_trimesh(bad)
+    # Past float32's range the GPU's positions would be infinite (and the scene's box NaN).
+    huge = trimesh.Trimesh(vertices=[[0, 0, 0], [1e39, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]],
+                           process=False)
+    with pytest.raises(SceneError, match=r"beyond float32's range \(1e\+39; at most 3.4e\+38\)"):
+        scene_from_trimesh(huge)
     with pytest.raises(SceneError, match="not a trimesh"):
         scene_from_trimesh("box.glb")
     assert is_trimesh(trimesh.creation.box()) and not is_trimesh(b"glTF")

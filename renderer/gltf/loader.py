@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import SceneError, UnsupportedExtension
 from ..limits import MAX_COORDINATE, Limits
 from ..scene import (
+    FLOAT32_MAX,
     Instance,
     Material,
     Primitive,
@@ -49,7 +50,6 @@ INSTANCING = gpu_instancing.EXTENSION
 #: Texture coordinates beyond this are moved towards 0 by whole repeats: float32 keeps
 #: 2**-13 of a repeat at 1024 (a quarter texel of a 2048-texel image), less beyond.
 _UV_SHIFT_FROM = 1024.0
-_FLOAT32_MAX = float(np.finfo(np.float32).max)
 _INDEX_COMPONENTS = frozenset({(UNSIGNED_BYTE, False), (UNSIGNED_SHORT, False),
                                (UNSIGNED_INT, False)})
 
@@ -556,7 +556,7 @@ class _Loader:
         uv = np.asarray(uv, np.float64)
         with np.errstate(invalid="ignore"):
             # Past float32's range a coordinate has no fraction left even in float64.
-            finite = (np.abs(uv) <= _FLOAT32_MAX).all(axis=1)
+            finite = (np.abs(uv) <= FLOAT32_MAX).all(axis=1)
         if not finite.all():
             self.warnings.append(f"{what}: {int((~finite).sum())} texture coordinates "
                                  f"({semantic}) are not finite in float32; drawn as (0, 0)")
@@ -571,7 +571,7 @@ class _Loader:
             uv = uv - 2.0 * np.floor(uv.min(axis=0) / 2.0)
             span = float(uv.max())
             if span > _UV_SHIFT_FROM:
-                uv = np.minimum(uv, _FLOAT32_MAX)  # a span past float32's range: its edge
+                uv = np.minimum(uv, FLOAT32_MAX)  # a span past float32's range: its edge
                 # float32's step at the span; from 2**24 on, whole repeats at best.
                 kept = (f"to {float(np.spacing(np.float32(span))):.2g} of a repeat"
                         if span < 2.0**24 else "no fraction of a repeat")
