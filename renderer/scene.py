@@ -942,10 +942,27 @@ def scene_from_meshes(meshes: list, names: list[str] | None = None) -> Scene:
     ----------
     meshes : list of trimesh.Trimesh
         ``mesh.metadata`` may hold ``castShadow`` / ``receiveShadow`` booleans.
+    names : list of str, optional
+        One per mesh.
+
+    Raises
+    ------
+    SceneError
+        No mesh, an item that is not a ``trimesh.Trimesh``, names not one per mesh, or a mesh
+        :func:`scene_from_trimesh` would refuse.
     """
+    import trimesh
+
+    if isinstance(meshes, (str, bytes)) or not isinstance(meshes, Sequence):
+        raise SceneError(f"meshes must be a list of trimesh.Trimesh, not a "
+                         f"{type(meshes).__name__}")
+    if names is not None and len(names) != len(meshes):
+        raise SceneError(f"{len(names)} names for {len(meshes)} meshes")
     primitives, instances = [], []
     for i, mesh in enumerate(meshes):
         name = names[i] if names else f"mesh_{i}"
+        if not isinstance(mesh, trimesh.Trimesh):
+            raise SceneError(f"mesh {i} is a {type(mesh).__name__}, not a trimesh.Trimesh")
         prim = _primitive_from_trimesh(mesh, name)
         primitives.append(prim)
         meta = mesh.metadata if isinstance(mesh.metadata, dict) else {}

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from shadowmap import RenderParams, SceneError, scene_from_trimesh
+from shadowmap import RenderParams, SceneError, scene_from_meshes, scene_from_trimesh
 from shadowmap.renderer.scene import is_trimesh
 
 LIGHT = {"type": "directional", "direction": [-0.3, -1.0, -0.2]}
@@ -79,6 +79,14 @@ def test_refusals_and_warnings():
         scene_from_trimesh(huge)
     with pytest.raises(SceneError, match="not a trimesh"):
         scene_from_trimesh("box.glb")
+    box = trimesh.creation.box()
+    for meshes, names, text in (([trimesh.PointCloud(np.zeros((3, 3)))], None,
+                                 "mesh 0 is a PointCloud, not a trimesh.Trimesh"),
+                                ([box, box], ["a"], "1 names for 2 meshes"),
+                                ("box", None, "must be a list of trimesh.Trimesh, not a str")):
+        with pytest.raises(SceneError, match=text):
+            scene_from_meshes(meshes, names)
+    assert scene_from_meshes((box,), ["b"]).instances[0].name == "b"
     assert is_trimesh(trimesh.creation.box()) and not is_trimesh(b"glTF")
 
 
