@@ -154,6 +154,13 @@ def _render(args: argparse.Namespace) -> int:
     if request.float_format == "exr" and out is not None and not exr_available():
         # Before the render: the files are written after it.
         return _fail("float_format exr needs the OpenEXR package: pip install 'OpenEXR>=3.5'")
+    # The folders too: a path that cannot be one fails now, not after the render.
+    folders = [out, Path(args.output).parent if args.output is not None else None]
+    for folder in (f for f in folders if f is not None):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            return _fail(f"cannot write {folder}: {exc.strerror or exc}")
     try:
         scene = load_scene(scene_path)  # a .gltf's files are read from beside it
         if orbit is not None:
@@ -174,14 +181,16 @@ def _render(args: argparse.Namespace) -> int:
     if args.output is not None and result.color is not None:
         output = Path(args.output)
         try:
-            output.parent.mkdir(parents=True, exist_ok=True)
             Image.fromarray(result.color).save(output, format="PNG")
         except OSError as exc:
             return _fail(f"cannot write {output}: {exc.strerror or exc}")
     for warning in result.warnings:
         print(f"shadowmap: warning: {' '.join(warning.splitlines())}", file=sys.stderr)
     if out is not None:
-        _write_out(out, scene_path, result, request.float_format)
+        try:
+            _write_out(out, scene_path, result, request.float_format)
+        except OSError as exc:
+            return _fail(f"cannot write {exc.filename or out}: {exc.strerror or exc}")
     t = result.timings
     written = ", ".join(str(p) for p in (args.output, out) if p is not None)
     print(f"rendered {scene_path.name} in {t['total'] * 1000:.1f} ms on {result.info['renderer']} "

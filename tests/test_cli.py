@@ -282,6 +282,18 @@ def test_bad_flag_values_exit_2_with_one_line(models, tmp_path, args, message):
     assert lines[0].startswith("shadowmap: error: ")
 
 
+@pytest.mark.parametrize("args", [["--out", "taken"], ["-o", "taken/x.png"],
+                                  ["--out", "taken/sub"]])
+def test_output_folders_that_cannot_be_made_fail_before_the_render(models, tmp_path, args):
+    """A file where a folder must go is one line and exit 2, before any GL work (it used to be a
+    traceback after the render)."""
+    (tmp_path / "taken").write_text("a file")
+    proc = shadowmap("render", str(models / "Duck.glb"), *args, cwd=tmp_path)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("shadowmap: error: cannot write taken"), lines
+
+
 def test_render_help_is_plain_text_with_the_one_liner():
     proc = shadowmap("render", "--help")
     assert proc.returncode == 0
