@@ -20,6 +20,8 @@ from typing import Any
 
 from fastapi import FastAPI
 
+from shadowmap.raycluster import check_address
+
 from .settings import Settings
 
 APP_NAME = "shadowmap"
@@ -104,13 +106,23 @@ def deploy(host: str = "127.0.0.1", port: int = 8000, replicas: int = 1, *,
 
     Returns once every replica is ready. ``address``: as ``ray.init`` (None: this machine's
     cluster, or a new local one).
+
+    Raises
+    ------
+    RuntimeError
+        The cluster at ``address`` cannot be reached or joined
+        (:func:`shadowmap.raycluster.check_address`).
     """
     import ray
     from ray import serve
 
     env = replica_env(overrides)
     if not ray.is_initialized():
-        ray.init(address=address)
+        check_address(address)  # in seconds, where ray.init would retry for minutes
+        try:
+            ray.init(address=address)
+        except (ConnectionError, ValueError) as exc:  # something else answers there
+            raise RuntimeError(f"cannot join the Ray cluster at {address}: {exc}") from None
     serve.start(http_options={"host": host, "port": port})
     serve.run(application(replicas, num_cpus=num_cpus, num_gpus=num_gpus, env=env),
               name=APP_NAME, route_prefix="/")

@@ -423,6 +423,7 @@ def _serve_ray(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
         import ray  # noqa: F401
 
         from .app import ray_serve
+        from .raycluster import check_address
     except ImportError as exc:
         return _fail(f"--ray needs the ray extra ({exc.name or exc} is missing): "
                      "pip install 'shadowmap-service[server,ray]'", 4)
@@ -432,7 +433,11 @@ def _serve_ray(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
     for name in ("keep_alive_timeout", "limit_concurrency"):
         overrides.pop(name, None)
     address = None if args.ray == "auto" else args.ray
-    ray_serve.run(args.host, args.port, args.replicas, address=address, **overrides)
+    try:
+        check_address(address)
+        ray_serve.run(args.host, args.port, args.replicas, address=address, **overrides)
+    except RuntimeError as exc:  # the cluster cannot be reached or joined
+        return _fail(str(exc), 3)
     return 0
 
 
@@ -450,18 +455,21 @@ def _batch(args: argparse.Namespace) -> int:
         except ImportError:
             return _fail("--ray needs the ray extra: pip install 'shadowmap-service[ray]'", 4)
     progress = None if args.quiet else _BatchBar()
+    failure: tuple[str, int] | None = None
     try:
         report = render_many(args.manifest, args.out, workers=args.workers, ray=args.ray,
                              actors=args.workers if args.ray is not None else None,
                              timeout=args.timeout, progress=progress, resume=not args.force,
                              max_job_renders=args.max_job_renders)
     except OSError as exc:
-        return _fail(f"{exc.filename or args.manifest}: {exc.strerror or exc}")
+        failure = (f"{exc.filename or args.manifest}: {exc.strerror or exc}", 2)
     except (RuntimeError, RenderError) as exc:
-        return _fail(str(exc), 3)
+        failure = (str(exc), 3)
     finally:
         if progress is not None:
-            progress.close()
+            progress.close()  # before any message: the bar's line ends first
+    if failure is not None:
+        return _fail(*failure)
     for rec in report.records:
         if rec["status"] != "ok":
             err = rec["error"]

@@ -26,6 +26,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from shadowmap.raycluster import check_address
 from shadowmap.renderer import Limits
 
 from .manifest import SceneBytes, SceneRef
@@ -135,7 +136,12 @@ class RayBackend:
         import ray
 
         if not ray.is_initialized():
-            ray.init(address=self.address, **self.init_kwargs)
+            check_address(self.address)  # in seconds, where ray.init would retry for minutes
+            try:
+                ray.init(address=self.address, **self.init_kwargs)
+            except (ConnectionError, ValueError) as exc:  # something else answers there
+                raise RuntimeError(f"cannot join the Ray cluster at {self.address}: "
+                                   f"{exc}") from None
         resources = ray.cluster_resources()
         cpus, gpus = float(resources.get("CPU", 1)), float(resources.get("GPU", 0))
         if self.gpus_per_actor is None:

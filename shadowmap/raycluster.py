@@ -1,0 +1,56 @@
+"""Reaching a Ray cluster by its address: what ``shadowmap batch --ray`` and
+``shadowmap serve --ray`` (:mod:`shadowmap.batch.ray`, :mod:`shadowmap.app.ray_serve`) check before
+``ray.init``.
+
+Given a ``HOST:PORT`` that nothing answers on, ``ray.init`` keeps trying to reach the cluster for
+minutes before it gives up (each of its tries waits for the cluster's ID), and a malformed address
+raises a bare ``ValueError`` from inside Ray. :func:`check_address` answers both in seconds, with
+the address in the message. It opens one TCP connection; it does not import Ray.
+"""
+
+from __future__ import annotations
+
+import socket
+
+__all__ = ["CONNECT_TIMEOUT", "check_address"]
+
+#: Seconds to wait for a cluster's port to accept a connection.
+CONNECT_TIMEOUT = 10.0
+#: Addresses Ray resolves itself (this machine's cluster): nothing to check.
+LOCAL = ("auto", "local")
+
+
+def check_address(address: str | None, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Refuse a Ray address that is malformed or that nothing answers on.
+
+    Parameters
+    ----------
+    address : str or None
+        ``None``, ``"auto"`` or ``"local"`` (this machine's cluster: not checked), ``HOST:PORT``
+        (a cluster's GCS) or ``ray://HOST:PORT`` (Ray Client); IPv6 hosts in brackets.
+    timeout : float
+        Seconds the port may take to accept a connection.
+
+    Raises
+    ------
+    RuntimeError
+        The address is not one of those forms, or its port refused or did not accept a
+        connection within ``timeout``.
+    """
+    if address is None or address in LOCAL:
+        return
+    target = address.removeprefix("ray://")
+    host, sep, port = target.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise RuntimeError(f"{address!r} is not a Ray cluster address: give auto, HOST:PORT (the "
+                           "head's GCS port, 6379 by default) or ray://HOST:PORT (Ray Client, "
+                           "10001 by default)")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except TimeoutError:
+        raise RuntimeError(f"cannot reach the Ray cluster at {address}: no answer within "
+                           f"{timeout:g} s") from None
+    except OSError as exc:
+        raise RuntimeError(f"cannot reach the Ray cluster at {address}: "
+                           f"{exc.strerror or exc}") from None

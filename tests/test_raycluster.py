@@ -1,0 +1,69 @@
+"""``--ray ADDRESS``: a malformed address, or one nothing answers on, fails in seconds with the
+address in the message (``ray.init`` would retry for minutes). Needs no Ray for the check; the
+command-line cases need the ray extra."""
+
+from __future__ import annotations
+
+import re
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from shadowmap.raycluster import check_address
+
+
+def _closed_port() -> int:
+    """A localhost port nothing listens on (bound, then released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.parametrize("address", [None, "auto", "local"])
+def test_this_machines_cluster_is_not_checked(address):
+    check_address(address, timeout=0.01)
+
+
+@pytest.mark.parametrize("address", ["garbage", "head", "head:", ":6379", "head:port",
+                                     "head:0", "head:70000", "ray://", "ray://head"])
+def test_malformed_addresses(address):
+    with pytest.raises(RuntimeError, match=f"^{address!r} is not a Ray cluster address: give "
+                       "auto, HOST:PORT"):
+        check_address(address)
+
+
+def test_a_port_that_refuses_or_a_host_that_does_not_resolve():
+    port = _closed_port()
+    for address in (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}", f"[::1]:{port}"):
+        with pytest.raises(RuntimeError,
+                           match=f"^cannot reach the Ray cluster at {re.escape(address)}: "):
+            check_address(address)
+    with pytest.raises(RuntimeError, match="cannot reach the Ray cluster at nohost.invalid:6379"):
+        check_address("nohost.invalid:6379")
+
+
+def test_a_listening_port_passes():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        check_address(f"127.0.0.1:{port}")
+        check_address(f"ray://localhost:{port}")
+
+
+@pytest.mark.parametrize("command", [["batch", "{manifest}", "--out", "{out}"], ["serve"]])
+def test_command_line_fails_fast(tmp_path, command):
+    pytest.importorskip("ray", reason="the ray extra is not installed")
+    manifest = tmp_path / "m.jsonl"
+    manifest.write_text('{"id": "d", "scene": {"builtin": "demo"}}\n')
+    args = [a.format(manifest=manifest, out=tmp_path / "o") for a in command]
+    address = f"127.0.0.1:{_closed_port()}"
+    proc = subprocess.run([sys.executable, "-m", "shadowmap", *args, "--ray", address],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 3, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("shadowmap: error: ") and f"cannot reach the Ray cluster at {address}" \
+        in last, proc.stderr
+    assert not (tmp_path / "o" / "d").exists()
