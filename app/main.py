@@ -16,8 +16,13 @@ from __future__ import annotations
 
 import asyncio
 import copy
+import ctypes
 import logging
+import multiprocessing
 import os
+import signal
+import socket
+import sys
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -62,10 +67,41 @@ def _setup_logging() -> None:
         root.setLevel(logging.INFO)
 
 
+#: prctl(2): the signal this process gets when its parent ends.
+_PR_SET_PDEATHSIG = 1
+
+
+def end_with_parent() -> bool:
+    """Have a server process that uvicorn started for ``--workers N`` end with uvicorn's main
+    process; True where that was set up.
+
+    uvicorn's worker processes answer its health checks from a thread that stops when the pipe
+    to the main process closes, and go on serving: with the main process killed (SIGKILL, the
+    OOM killer) they kept the port, their render workers and their memory, with nothing left to
+    stop them. Asked here (``PR_SET_PDEATHSIG``, Linux), the kernel sends this process SIGTERM
+    when its parent ends, which uvicorn takes as a graceful shutdown: the lifespan then stops
+    the render worker. A process that no ``multiprocessing`` parent started (one server
+    process, a Ray Serve replica, tests) is left alone.
+    """
+    parent = multiprocessing.parent_process()
+    if parent is None or not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+            return False
+    except (OSError, AttributeError):  # no prctl in this C library
+        return False
+    if os.getppid() != parent.pid:  # it ended before the request took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+    return True
+
+
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     """Start this process's render worker before serving; stop it on shutdown."""
     _setup_logging()
+    end_with_parent()
     settings: Settings = app.state.settings
     # The demo scene: built once, before the first request, and each worker's warm-up render.
     demo = await run_in_threadpool(demo_upload)
@@ -244,6 +280,10 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
         An override that is not a setting.
     pydantic.ValidationError
         A setting (from the environment or ``overrides``) out of range.
+    ValueError
+        ``workers`` or ``port`` out of range (:func:`check_server`).
+    OSError
+        Nothing can listen on ``host:port`` (in use, or not an address of this machine).
     """
     import uvicorn
 
@@ -253,6 +293,7 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
         if value is not None:
             os.environ[f"SHADOWMAP_{name.upper()}"] = str(value)
     settings = Settings()  # validated here, so a bad value fails before anything starts
+    check_server(host, port, workers)
     uvicorn.run("shadowmap.app.main:create_app", factory=True, host=host, port=port,
                 workers=workers if workers > 1 else None, log_level=log_level,
                 timeout_keep_alive=settings.keep_alive_timeout,
@@ -260,6 +301,42 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
                 # Typed int, used as a float (asyncio.wait_for's timeout).
                 timeout_graceful_shutdown=settings.shutdown_timeout,  # type: ignore[arg-type]
                 http=_http_protocol())
+
+
+#: Server processes per CPU at most (``shadowmap serve --workers``): each one holds a render
+#: worker process and a GL context, and on llvmpipe one render already uses every core.
+MAX_WORKERS_PER_CPU = 4
+
+
+def check_server(host: str, port: int, workers: int) -> None:
+    """What :func:`run` checks before it starts anything: a bad value would otherwise surface
+    after every worker process had started its render worker (a port or host), or start as many
+    processes as it says (``workers``: 1000 took this 24 GiB machine down).
+
+    Raises
+    ------
+    ValueError
+        ``workers`` under 1 or over :data:`MAX_WORKERS_PER_CPU` per CPU this process may use;
+        ``port`` outside 0-65535.
+    OSError
+        ``host:port`` cannot be listened on (bound once, then released).
+    """
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    most = MAX_WORKERS_PER_CPU * (cpus or 1)
+    if not 1 <= workers <= most:
+        raise ValueError(f"workers must be from 1 to {most} here ({MAX_WORKERS_PER_CPU} per CPU: "
+                         f"each is a server process with its own render process), not {workers}")
+    if not 0 <= port <= 65535:
+        raise ValueError(f"port must be from 0 to 65535, not {port}")
+    # As uvicorn binds (uvicorn.Config.bind_socket).
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    try:
+        with socket.socket(family) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind((host, port))
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot listen on {host}:{port}: "
+                      f"{exc.strerror or exc}") from None
 
 
 def _http_protocol() -> type[asyncio.Protocol] | str:

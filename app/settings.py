@@ -12,6 +12,11 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from shadowmap.renderer.limits import MAX_LIGHTS, Limits
 from shadowmap.renderer.params import MAX_IMAGE_SIDE
 
+#: The longest time a setting in seconds may give, a week: the waits it sets are in the event
+#: loop and in ``select``/``epoll``, which take at most 2**31 ms (about 24.8 days) and fail past
+#: it, on every request.
+MAX_SECONDS = 7 * 86400
+
 
 class Settings(BaseSettings):
     """Limits and tuning of one service process.
@@ -100,19 +105,21 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="SHADOWMAP_", extra="ignore")
 
     max_upload_bytes: int = Field(default=32 * 2**20, ge=1024)
-    zip_expansion: float = Field(default=4.0, ge=1.0, le=1000.0)
+    zip_expansion: float = Field(default=4.0, ge=1.0, le=1000.0, allow_inf_nan=False)
     max_zip_entries: int = Field(default=1000, ge=1)
     max_pixels: int = Field(default=4096 * 4096, ge=1)
     max_image_side: int = Field(default=MAX_IMAGE_SIDE, ge=1, le=MAX_IMAGE_SIDE)
     max_map_size: int = Field(default=4096, ge=16, le=16384)
     max_triangles: int = Field(default=2_000_000, ge=1)
     max_lights: int = Field(default=MAX_LIGHTS, ge=1, le=MAX_LIGHTS)
-    render_timeout: float = Field(default=60.0, gt=0.0)
+    render_timeout: float = Field(default=60.0, gt=0.0, le=MAX_SECONDS,
+                                  allow_inf_nan=False)
     queue_size: int = Field(default=32, ge=1)
     scene_cache_entries: int = Field(default=4, ge=0)
     gpu_cache_bytes: int = Field(default=256 * 2**20, ge=0)
     light_map_cache_bytes: int = Field(default=192 * 2**20, ge=0)
-    startup_timeout: float = Field(default=60.0, gt=0.0)
+    startup_timeout: float = Field(default=60.0, gt=0.0, le=MAX_SECONDS,
+                                  allow_inf_nan=False)
     max_nodes: int = Field(default=Limits.max_nodes, ge=1)
     max_depth: int = Field(default=Limits.max_depth, ge=1)
     max_instances: int = Field(default=Limits.max_instances, ge=1)
@@ -121,13 +128,16 @@ class Settings(BaseSettings):
     max_request_bytes: int = Field(default=Limits.max_request_bytes, ge=2**20)
 
     # -- the service process model: worker process, admission by time, slow clients ----------
-    max_expected_wait: float = Field(default=30.0, gt=0.0)
+    max_expected_wait: float = Field(default=30.0, gt=0.0, le=MAX_SECONDS,
+                                  allow_inf_nan=False)
     max_renders_per_worker: int = Field(default=500, ge=0)
     max_worker_memory_bytes: int = Field(default=1536 * 2**20, ge=0)
-    upload_timeout: float = Field(default=30.0, gt=0.0)
-    keep_alive_timeout: int = Field(default=5, ge=1)
+    upload_timeout: float = Field(default=30.0, gt=0.0, le=MAX_SECONDS,
+                                  allow_inf_nan=False)
+    keep_alive_timeout: int = Field(default=5, ge=1, le=MAX_SECONDS)
     limit_concurrency: int = Field(default=64, ge=1)
-    shutdown_timeout: float = Field(default=10.0, ge=0.0)
+    shutdown_timeout: float = Field(default=10.0, ge=0.0, le=MAX_SECONDS,
+                                  allow_inf_nan=False)
 
     def limits(self) -> Limits:
         """The renderer's :class:`~shadowmap.renderer.limits.Limits` from these settings."""

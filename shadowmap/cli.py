@@ -414,6 +414,10 @@ def _serve(args: argparse.Namespace) -> int:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"]) or "settings"
         return _fail(f"invalid setting: {where}: {first['msg']}")
+    except ValueError as exc:  # --workers, --port (app.main.check_server)
+        return _fail(f"--{str(exc)}")
+    except OSError as exc:  # cannot listen on --host:--port
+        return _fail(exc.strerror or str(exc), 3)
     return 0
 
 
@@ -591,7 +595,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=int, default=8000)
     s.add_argument("--workers", type=int, default=1,
-                   help="server processes (each with its own render worker process)")
+                   help="server processes (each with its own render worker process; at "
+                   "most 4 per CPU)")
     for name, (kind, text) in SERVE_SETTINGS.items():
         s.add_argument("--" + name.replace("_", "-"), type=kind, default=None, dest=name,
                        help=f"{text} (default: $SHADOWMAP_{name.upper()}, else the setting's "

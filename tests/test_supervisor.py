@@ -496,3 +496,98 @@ def test_serve_refuses_an_invalid_setting_in_one_line():
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "invalid setting: shutdown_timeout" in lines[0], proc.stderr
+
+
+@pytest.mark.parametrize("args, env, message", [
+    (["--workers", "0"], {}, "--workers must be from 1 to"),
+    (["--workers", "100000"], {}, "--workers must be from 1 to"),
+    (["--port", "70000"], {}, "--port must be from 0 to 65535, not 70000"),
+    ([], {"SHADOWMAP_RENDER_TIMEOUT": "1e9"}, "invalid setting: render_timeout: Input should be "
+     "less than or equal to 604800"),
+    (["--shutdown-timeout", "inf"], {}, "invalid setting: shutdown_timeout: Input should be a "
+     "finite number"),
+])
+def test_serve_refuses_out_of_range_values_before_starting(args, env, message):
+    """One line, exit 2, before any worker starts (1000 workers took this machine down, and a
+    timeout past epoll's range failed every request)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "shadowmap", "serve", "--port", "1", *args],
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, **env})
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], proc.stderr
+
+
+def test_serve_refuses_a_port_it_cannot_listen_on():
+    from shadowmap.app.main import check_server
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        with pytest.raises(OSError, match=f"cannot listen on 127.0.0.1:{port}: Address already "
+                           "in use"):
+            check_server("127.0.0.1", port, 1)
+    with pytest.raises(OSError, match="cannot listen on nohost.invalid:8000"):
+        check_server("nohost.invalid", 8000, 1)
+    check_server("127.0.0.1", 0, 1)
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (from /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    parent = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            children.setdefault(parent, []).append(int(entry))
+    out, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads the process tree from /proc")
+def test_server_processes_end_with_a_killed_main_process(tmp_path):
+    """``serve --workers 2`` with its main process SIGKILLed: its two server processes and their
+    render workers end too (they kept serving, holding the port and their memory)."""
+    import subprocess
+    import sys
+
+    from test_app import free_port
+
+    port = free_port()
+    with open(tmp_path / "serve.log", "w") as log:
+        proc = subprocess.Popen([sys.executable, "-m", "shadowmap", "serve", "--port", str(port),
+                                 "--workers", "2"], stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    def serving() -> bool:
+        try:
+            up = httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+        # Two server processes, each with its render worker (and multiprocessing's tracker).
+        return up and len([p for p in _descendants(proc.pid) if not process_gone(p)]) >= 4
+
+    try:
+        wait_for(serving, timeout=120, what="two server processes with their render workers")
+        below = _descendants(proc.pid)
+    finally:
+        proc.kill()
+        proc.wait(10)
+    try:
+        wait_for(lambda: all(process_gone(p) for p in below), timeout=60,
+                 what="the server processes to end with their main process")
+    finally:
+        for p in below:
+            if not process_gone(p):
+                os.kill(p, signal.SIGKILL)
