@@ -35,6 +35,7 @@ from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from shadowmap import __version__
+from shadowmap.hosts import check_workers
 from shadowmap.renderer import RenderParams
 
 from .deps import default_size, demo_upload, optional_features
@@ -303,11 +304,6 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
                 http=_http_protocol())
 
 
-#: Server processes per CPU at most (``shadowmap serve --workers``): each one holds a render
-#: worker process and a GL context, and on llvmpipe one render already uses every core.
-MAX_WORKERS_PER_CPU = 4
-
-
 def check_server(host: str, port: int, workers: int) -> None:
     """What :func:`run` checks before it starts anything: a bad value would otherwise surface
     after every worker process had started its render worker (a port or host), or start as many
@@ -316,16 +312,12 @@ def check_server(host: str, port: int, workers: int) -> None:
     Raises
     ------
     ValueError
-        ``workers`` under 1 or over :data:`MAX_WORKERS_PER_CPU` per CPU this process may use;
-        ``port`` outside 0-65535.
+        ``workers`` out of range (:func:`shadowmap.hosts.check_workers`); ``port`` outside
+        0-65535.
     OSError
         ``host:port`` cannot be listened on (bound once, then released).
     """
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    most = MAX_WORKERS_PER_CPU * (cpus or 1)
-    if not 1 <= workers <= most:
-        raise ValueError(f"workers must be from 1 to {most} here ({MAX_WORKERS_PER_CPU} per CPU: "
-                         f"each is a server process with its own render process), not {workers}")
+    check_workers(workers)
     if not 0 <= port <= 65535:
         raise ValueError(f"port must be from 0 to 65535, not {port}")
     # As uvicorn binds (uvicorn.Config.bind_socket).

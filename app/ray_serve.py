@@ -20,7 +20,7 @@ from typing import Any
 
 from fastapi import FastAPI
 
-from shadowmap.raycluster import check_address
+from shadowmap.hosts import check_address
 
 from .settings import Settings
 
@@ -111,7 +111,7 @@ def deploy(host: str = "127.0.0.1", port: int = 8000, replicas: int = 1, *,
     ------
     RuntimeError
         The cluster at ``address`` cannot be reached or joined
-        (:func:`shadowmap.raycluster.check_address`).
+        (:func:`shadowmap.hosts.check_address`).
     """
     import ray
     from ray import serve

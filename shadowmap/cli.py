@@ -427,7 +427,7 @@ def _serve_ray(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
         import ray  # noqa: F401
 
         from .app import ray_serve
-        from .raycluster import check_address
+        from .hosts import check_address
     except ImportError as exc:
         return _fail(f"--ray needs the ray extra ({exc.name or exc} is missing): "
                      "pip install 'shadowmap-service[server,ray]'", 4)
@@ -447,10 +447,17 @@ def _serve_ray(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
 
 def _batch(args: argparse.Namespace) -> int:
     from .batch import render_many
+    from .hosts import check_workers
     from .renderer.errors import RenderError
 
-    if args.workers is not None and args.workers < 1:
-        return _fail("--workers must be at least 1")
+    if args.workers is not None:
+        try:
+            if args.ray is None:  # local processes (Ray actors may be on other machines)
+                check_workers(args.workers, "--workers")
+            elif args.workers < 1:
+                raise ValueError("--workers must be at least 1")
+        except ValueError as exc:
+            return _fail(str(exc))
     if args.max_job_renders < 1:
         return _fail("--max-job-renders must be at least 1")
     if args.ray is not None:

@@ -23,6 +23,7 @@ from multiprocessing.connection import Connection, wait
 from multiprocessing.context import SpawnProcess
 from typing import Any
 
+from shadowmap.hosts import check_workers
 from shadowmap.renderer import Limits
 
 from .manifest import SceneBytes, SceneRef
@@ -140,6 +141,11 @@ class LocalPool:
     ----------
     workers : int, optional
         Processes; :func:`default_workers` when omitted.
+
+    Raises
+    ------
+    ValueError
+        ``workers`` under 1 or over 4 per CPU (:func:`shadowmap.hosts.check_workers`).
     platform : {"egl", "osmesa"}, optional
     limits : Limits, optional
     timeout : float, optional
@@ -151,8 +157,7 @@ class LocalPool:
     def __init__(self, workers: int | None = None, *, platform: str | None = None,
                  limits: Limits | None = None, timeout: float | None = None) -> None:
         self.workers = workers or default_workers()
-        if self.workers < 1:
-            raise ValueError("workers must be at least 1")
+        check_workers(self.workers)
         cores = os.cpu_count() or 1
         self.config = PoolConfig(platform, limits, max(1, cores // self.workers))
         self.timeout = timeout

@@ -26,7 +26,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from shadowmap.raycluster import check_address
+from shadowmap.hosts import check_address
 from shadowmap.renderer import Limits
 
 from .manifest import SceneBytes, SceneRef

@@ -1,6 +1,6 @@
-"""Reaching a Ray cluster by its address: what ``shadowmap batch --ray`` and
-``shadowmap serve --ray`` (:mod:`shadowmap.batch.ray`, :mod:`shadowmap.app.ray_serve`) check before
-``ray.init``.
+"""What the service and the batch check about the machines they run on, before starting
+anything there: how many worker processes this machine takes (``shadowmap serve --workers``, the
+batch's local pool), and whether a Ray cluster answers at an address (``--ray ADDRESS``).
 
 Given a ``HOST:PORT`` that nothing answers on, ``ray.init`` keeps trying to reach the cluster for
 minutes before it gives up (each of its tries waits for the cluster's ID), and a malformed address
@@ -10,9 +10,16 @@ the address in the message. It opens one TCP connection; it does not import Ray.
 
 from __future__ import annotations
 
+import os
 import socket
 
-__all__ = ["CONNECT_TIMEOUT", "check_address"]
+__all__ = ["CONNECT_TIMEOUT", "MAX_WORKERS_PER_CPU", "check_address", "check_workers",
+           "usable_cpus"]
+
+#: Worker processes per CPU at most: each holds a GL context (and, for the service, a render
+#: worker process besides), and on llvmpipe one render already uses every core. 1000 server
+#: processes took this 24 GiB machine down.
+MAX_WORKERS_PER_CPU = 4
 
 #: Seconds to wait for a cluster's port to accept a connection.
 CONNECT_TIMEOUT = 10.0
@@ -54,3 +61,25 @@ def check_address(address: str | None, timeout: float = CONNECT_TIMEOUT) -> None
     except OSError as exc:
         raise RuntimeError(f"cannot reach the Ray cluster at {address}: "
                            f"{exc.strerror or exc}") from None
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity, where the platform says)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def check_workers(workers: int, what: str = "workers") -> None:
+    """Refuse a number of worker processes under 1 or over :data:`MAX_WORKERS_PER_CPU` per
+    usable CPU.
+
+    Raises
+    ------
+    ValueError
+        Naming ``what`` (e.g. ``--workers``), the range and why.
+    """
+    most = MAX_WORKERS_PER_CPU * usable_cpus()
+    if not 1 <= workers <= most:
+        raise ValueError(f"{what} must be from 1 to {most} here ({MAX_WORKERS_PER_CPU} per "
+                         f"CPU: each is a process with its own GL context), not {workers}")

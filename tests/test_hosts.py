@@ -1,6 +1,7 @@
-"""``--ray ADDRESS``: a malformed address, or one nothing answers on, fails in seconds with the
-address in the message (``ray.init`` would retry for minutes). Needs no Ray for the check; the
-command-line cases need the ray extra."""
+"""What is checked about the machine before anything starts: worker process counts (the
+service's and the batch's local pool), and ``--ray ADDRESS`` (a malformed address, or one nothing
+answers on, fails in seconds with the address in the message, where ``ray.init`` would retry for
+minutes). Needs no Ray for the checks; the command-line cases need the ray extra."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import sys
 
 import pytest
 
-from shadowmap.raycluster import check_address
+from shadowmap.hosts import MAX_WORKERS_PER_CPU, check_address, check_workers, usable_cpus
 
 
 def _closed_port() -> int:
@@ -67,3 +68,31 @@ def test_command_line_fails_fast(tmp_path, command):
     assert last.startswith("shadowmap: error: ") and f"cannot reach the Ray cluster at {address}" \
         in last, proc.stderr
     assert not (tmp_path / "o" / "d").exists()
+
+
+def test_worker_counts():
+    most = MAX_WORKERS_PER_CPU * usable_cpus()
+    for ok in (1, most):
+        check_workers(ok)
+    for bad in (0, -1, most + 1):
+        with pytest.raises(ValueError, match=f"^--workers must be from 1 to {most} here "
+                           rf"\({MAX_WORKERS_PER_CPU} per CPU: each is a process with its own GL "
+                           rf"context\), not {bad}$"):
+            check_workers(bad, "--workers")
+
+
+def test_batch_refuses_more_local_workers_than_the_machine_takes(tmp_path):
+    from shadowmap.batch import LocalPool
+
+    most = MAX_WORKERS_PER_CPU * usable_cpus()
+    with pytest.raises(ValueError, match="workers must be from 1 to"):
+        LocalPool(most + 1)
+    manifest = tmp_path / "m.jsonl"
+    manifest.write_text('{"id": "d", "scene": {"builtin": "demo"}}\n')
+    proc = subprocess.run([sys.executable, "-m", "shadowmap", "batch", str(manifest), "--out",
+                           str(tmp_path / "o"), "--workers", str(most + 1)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (f"shadowmap: error: --workers must be from 1 to {most} here "
+                                   f"({MAX_WORKERS_PER_CPU} per CPU: each is a process with its "
+                                   f"own GL context), not {most + 1}"), proc.stderr
