@@ -307,7 +307,7 @@ def run(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
 def check_server(host: str, port: int, workers: int) -> None:
     """What :func:`run` checks before it starts anything: a bad value would otherwise surface
     after every worker process had started its render worker (a port or host), or start as many
-    processes as it says (``workers``: 1000 took this 24 GiB machine down).
+    processes as it says (``workers``, see :data:`shadowmap.hosts.MAX_WORKERS_PER_CPU`).
 
     Raises
     ------

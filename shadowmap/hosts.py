@@ -17,8 +17,9 @@ __all__ = ["CONNECT_TIMEOUT", "MAX_WORKERS_PER_CPU", "check_address", "check_wor
            "usable_cpus"]
 
 #: Worker processes per CPU at most: each holds a GL context (and, for the service, a render
-#: worker process besides), and on llvmpipe one render already uses every core. 1000 server
-#: processes took this 24 GiB machine down.
+#: worker process besides), and on llvmpipe one render already uses every core. Asked for 1000,
+#: ``serve`` had filled 15 of this machine's 24 GiB with over 200 processes, its main process
+#: stuck past SIGTERM, when it was killed.
 MAX_WORKERS_PER_CPU = 4
 
 #: Seconds to wait for a cluster's port to accept a connection.
