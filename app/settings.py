@@ -9,13 +9,9 @@ from __future__ import annotations
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from shadowmap.hosts import MAX_SECONDS
 from shadowmap.renderer.limits import MAX_LIGHTS, Limits
 from shadowmap.renderer.params import MAX_IMAGE_SIDE
-
-#: The longest time a setting in seconds may give, a week: the waits it sets are in the event
-#: loop and in ``select``/``epoll``, which take at most 2**31 ms (about 24.8 days) and fail past
-#: it, on every request.
-MAX_SECONDS = 7 * 86400
 
 
 class Settings(BaseSettings):

@@ -447,7 +447,7 @@ def _serve_ray(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
 
 def _batch(args: argparse.Namespace) -> int:
     from .batch import render_many
-    from .hosts import check_workers
+    from .hosts import check_seconds, check_workers
     from .renderer.errors import RenderError
 
     if args.workers is not None:
@@ -456,6 +456,11 @@ def _batch(args: argparse.Namespace) -> int:
                 check_workers(args.workers, "--workers")
             elif args.workers < 1:
                 raise ValueError("--workers must be at least 1")
+        except ValueError as exc:
+            return _fail(str(exc))
+    if args.timeout is not None:
+        try:
+            check_seconds(args.timeout, "--timeout")
         except ValueError as exc:
             return _fail(str(exc))
     if args.max_job_renders < 1:

@@ -13,8 +13,13 @@ from __future__ import annotations
 import os
 import socket
 
-__all__ = ["CONNECT_TIMEOUT", "MAX_WORKERS_PER_CPU", "check_address", "check_workers",
-           "usable_cpus"]
+__all__ = ["CONNECT_TIMEOUT", "MAX_SECONDS", "MAX_WORKERS_PER_CPU", "check_address",
+           "check_seconds", "check_workers", "usable_cpus"]
+
+#: The longest time limit the service's settings and the batch's ``timeout`` may give, a week:
+#: the waits they set are in ``select``/``epoll`` and the event loop, which take at most 2**31 ms
+#: (about 24.8 days) and fail past it (every render did).
+MAX_SECONDS = 7 * 86400
 
 #: Worker processes per CPU at most: each holds a GL context (and, for the service, a render
 #: worker process besides), and on llvmpipe one render already uses every core. Asked for 1000,
@@ -84,3 +89,17 @@ def check_workers(workers: int, what: str = "workers") -> None:
     if not 1 <= workers <= most:
         raise ValueError(f"{what} must be from 1 to {most} here ({MAX_WORKERS_PER_CPU} per "
                          f"CPU: each is a process with its own GL context), not {workers}")
+
+
+def check_seconds(value: float, what: str) -> None:
+    """Refuse a time limit that is not a number of seconds above 0 and at most
+    :data:`MAX_SECONDS` (NaN, infinity, 0, negative).
+
+    Raises
+    ------
+    ValueError
+        Naming ``what`` (e.g. ``--timeout``).
+    """
+    if not 0 < value <= MAX_SECONDS:
+        raise ValueError(f"{what} must be a number of seconds above 0 and at most {MAX_SECONDS} "
+                         f"(a week), not {value}")

@@ -12,7 +12,14 @@ import sys
 
 import pytest
 
-from shadowmap.hosts import MAX_WORKERS_PER_CPU, check_address, check_workers, usable_cpus
+from shadowmap.hosts import (
+    MAX_SECONDS,
+    MAX_WORKERS_PER_CPU,
+    check_address,
+    check_seconds,
+    check_workers,
+    usable_cpus,
+)
 
 
 def _closed_port() -> int:
@@ -96,3 +103,27 @@ def test_batch_refuses_more_local_workers_than_the_machine_takes(tmp_path):
     assert proc.stderr.strip() == (f"shadowmap: error: --workers must be from 1 to {most} here "
                                    f"({MAX_WORKERS_PER_CPU} per CPU: each is a process with its "
                                    f"own GL context), not {most + 1}"), proc.stderr
+
+
+def test_time_limits(tmp_path):
+    """A batch's timeout is seconds above 0 and at most a week: 1e12 ended in an OverflowError
+    traceback, and -1, 0 and NaN were taken (every job then failed, or none could)."""
+    from shadowmap.batch import render_many
+
+    for ok in (0.001, 30, MAX_SECONDS):
+        check_seconds(ok, "--timeout")
+    for bad in (0, -1, float("nan"), float("inf"), MAX_SECONDS + 1, 1e12):
+        with pytest.raises(ValueError, match=f"^--timeout must be a number of seconds above 0 "
+                           f"and at most {MAX_SECONDS} \\(a week\\), not "):
+            check_seconds(bad, "--timeout")
+    with pytest.raises(ValueError, match="^timeout must be"):
+        render_many(tmp_path / "missing.jsonl", tmp_path / "o", timeout=-1)
+    assert not (tmp_path / "o").exists()
+    manifest = tmp_path / "m.jsonl"
+    manifest.write_text('{"id": "d", "scene": {"builtin": "demo"}}\n')
+    proc = subprocess.run([sys.executable, "-m", "shadowmap", "batch", str(manifest), "--out",
+                           str(tmp_path / "o"), "--timeout", "1e12"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.strip() == (
+        f"shadowmap: error: --timeout must be a number of seconds above 0 and at most "
+        f"{MAX_SECONDS} (a week), not 1000000000000.0"), proc.stderr

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from shadowmap.hosts import check_seconds
 from shadowmap.renderer import Limits
 
 from .errors import JobError
@@ -129,7 +130,8 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
         Renders one job may ask for (its views times its light lists); a job asking for more
         is an ``error`` record (``limit_exceeded``), refused before any of them is validated.
     timeout : float, optional
-        Seconds one job may run before its worker is killed (tried once more, then ``failed``).
+        Seconds one job may run before its worker is killed (tried once more, then ``failed``);
+        above 0 and at most a week (:data:`shadowmap.hosts.MAX_SECONDS`), else ValueError.
     platform : {"egl", "osmesa"}, optional
     resume : bool
         Skip jobs that ``results.jsonl`` records as done with the same inputs (default).
@@ -151,6 +153,8 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
         The workers cannot start (no GL context).
     """
     t0 = time.perf_counter()
+    if timeout is not None:
+        check_seconds(timeout, "timeout")  # before any job is read or any worker started
     limits = limits or Limits()
     out = Path(out_dir)
     job_list = _jobs(jobs, Path(base_dir) if base_dir is not None else Path.cwd(), limits,

@@ -23,7 +23,7 @@ from multiprocessing.connection import Connection, wait
 from multiprocessing.context import SpawnProcess
 from typing import Any
 
-from shadowmap.hosts import check_workers
+from shadowmap.hosts import check_seconds, check_workers
 from shadowmap.renderer import Limits
 
 from .manifest import SceneBytes, SceneRef
@@ -160,6 +160,8 @@ class LocalPool:
         check_workers(self.workers)
         cores = os.cpu_count() or 1
         self.config = PoolConfig(platform, limits, max(1, cores // self.workers))
+        if timeout is not None:
+            check_seconds(timeout, "timeout")
         self.timeout = timeout
         self._ctx = multiprocessing.get_context("spawn")
         self._pool: list[_Worker] = []

@@ -26,7 +26,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from shadowmap.hosts import check_address
+from shadowmap.hosts import check_address, check_seconds
 from shadowmap.renderer import Limits
 
 from .manifest import SceneBytes, SceneRef
@@ -115,6 +115,8 @@ class RayBackend:
         self.gpus_per_actor = gpus_per_actor
         self.platform = platform
         self.limits = limits
+        if timeout is not None:
+            check_seconds(timeout, "timeout")
         self.timeout = timeout
         self.depth = max(1, depth)
         self.init_kwargs = init_kwargs or {}
