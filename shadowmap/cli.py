@@ -450,21 +450,17 @@ def _batch(args: argparse.Namespace) -> int:
     from .hosts import check_seconds, check_workers
     from .renderer.errors import RenderError
 
-    if args.workers is not None:
-        try:
-            if args.ray is None:  # local processes (Ray actors may be on other machines)
-                check_workers(args.workers, "--workers")
-            elif args.workers < 1:
-                raise ValueError("--workers must be at least 1")
-        except ValueError as exc:
-            return _fail(str(exc))
-    if args.timeout is not None:
-        try:
+    try:
+        if args.workers is not None and args.ray is None:  # local processes
+            check_workers(args.workers, "--workers")
+        elif args.workers is not None and args.workers < 1:  # Ray actors, maybe elsewhere
+            raise ValueError("--workers must be at least 1")
+        if args.timeout is not None:
             check_seconds(args.timeout, "--timeout")
-        except ValueError as exc:
-            return _fail(str(exc))
-    if args.max_job_renders < 1:
-        return _fail("--max-job-renders must be at least 1")
+        if args.max_job_renders < 1:
+            raise ValueError("--max-job-renders must be at least 1")
+    except ValueError as exc:
+        return _fail(str(exc))
     if args.ray is not None:
         try:
             import ray  # noqa: F401
@@ -561,6 +557,7 @@ SERVE_SETTINGS: dict[str, tuple[type, str]] = {
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     from .batch.manifest import MAX_JOB_RENDERS
+    from .hosts import MAX_WORKERS_PER_CPU
     from .renderer.params import EXAMPLE_PARAMS
 
     parser = argparse.ArgumentParser(
@@ -608,7 +605,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--port", type=int, default=8000)
     s.add_argument("--workers", type=int, default=1,
                    help="server processes (each with its own render worker process; at "
-                   "most 4 per CPU)")
+                   f"most {MAX_WORKERS_PER_CPU} per CPU)")
     for name, (kind, text) in SERVE_SETTINGS.items():
         s.add_argument("--" + name.replace("_", "-"), type=kind, default=None, dest=name,
                        help=f"{text} (default: $SHADOWMAP_{name.upper()}, else the setting's "
