@@ -16,6 +16,7 @@ pydantic ``ValidationError`` 422     ``invalid_params`` (plus ``errors``, each w
                                      ``pointer``, and ``field``: the first pointer)
 ``ReferenceUnavailable``     501     ``reference_unavailable``
 ``ExrUnavailable``           422     ``unavailable_feature`` (plus ``field``)
+``FileFormatError``          400     ``invalid_file`` (``read_exr``'s; no route reads a file)
 ``RenderError``              500     ``render_failed`` (logged)
 anything else                500     ``internal_error`` (logged)
 ===========================  ======  ===========================================
@@ -43,6 +44,7 @@ STATUS = {
     "unsupported_extension": 422,
     "unsupported_version": 422,
     "invalid_scene": 400,
+    "invalid_file": 400,  # a library reader's (read_exr): the service reads no such file
     "invalid_request": 422,
     "limit_exceeded": 422,
     "reference_unavailable": 501,

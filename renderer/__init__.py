@@ -15,6 +15,7 @@ tests and benchmarks).
 
 from .errors import (
     ExrUnavailable,
+    FileFormatError,
     LimitError,
     ReferenceUnavailable,
     RenderError,
@@ -33,6 +34,7 @@ from .scene import Scene, load_scene, scene_from_meshes, scene_from_trimesh
 
 __all__ = [
     "ExrUnavailable",
+    "FileFormatError",
     "LimitError",
     "Limits",
     "ReferenceUnavailable",

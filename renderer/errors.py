@@ -106,6 +106,13 @@ class RequestError(ShadowMapError, ValueError):
         return {"errors": self.errors} if self.errors else {}
 
 
+class FileFormatError(ShadowMapError, ValueError):
+    """A file the library reads back (:func:`~renderer.exr.read_exr`'s OpenEXR) cannot be read:
+    missing, not of that format, truncated or corrupt."""
+
+    code = "invalid_file"
+
+
 class LimitError(ShadowMapError):
     """A configured limit (triangles, image size, map size, lights, time) was exceeded.
 

@@ -19,13 +19,15 @@ extra); without it :class:`ExrUnavailable` is raised.
 from __future__ import annotations
 
 import io
+import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import ExrUnavailable
+from .errors import ExrUnavailable, FileFormatError, LimitError
+from .limits import Limits
 
 MEDIA_EXR = "image/x-exr"
 DEPTH_CHANNEL = "Z"
@@ -94,17 +96,62 @@ def write_exr(path: str | Path, channels: Mapping[str, np.ndarray],
     Path(path).write_bytes(exr_bytes(channels, attributes))
 
 
-def read_exr(source: str | Path | bytes) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def read_exr(source: str | os.PathLike[str] | bytes | bytearray | memoryview,
+             max_pixels: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The channels (float32 arrays by name) and header of an EXR file or its bytes.
+
+    The header is read first: a data window over ``max_pixels`` is refused before any pixel
+    is, as a corrupt or hostile header can ask for any size (60,000² is 13 GiB per channel).
+
+    Parameters
+    ----------
+    source : path or bytes-like
+        A file's path, or the file's content.
+    max_pixels : int, optional
+        The most pixels per channel read; default :attr:`Limits.max_pixels` (the largest image
+        a render makes under the default limits).
+
+    Returns
+    -------
+    channels : dict of str to ndarray, each shape (H, W)
+    header : dict
+        The file's header attributes (``dataWindow``, ``compression``, ``near``, ...).
 
     Raises
     ------
     ExrUnavailable
         The ``OpenEXR`` package is not installed.
+    FileFormatError
+        The file cannot be read, or is not an OpenEXR image (truncated, corrupt).
+    LimitError
+        Its data window holds more than ``max_pixels`` pixels (``limit`` ``"max_pixels"``).
     """
     exr = _openexr()
-    stream = io.BytesIO(source) if isinstance(source, bytes) else io.BytesIO(
-        Path(source).read_bytes())
-    f = exr.File(stream, separate_channels=True)
-    channels = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        data, name = bytes(source), "the EXR data"
+    elif isinstance(source, (str, os.PathLike)):
+        name = os.fsdecode(source).replace("\x00", "\\x00")
+        try:
+            data = Path(source).read_bytes()
+        except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
+            raise FileFormatError(f"cannot read {name}: "
+                                  f"{getattr(exc, 'strerror', None) or exc}") from None
+    else:
+        raise FileFormatError(f"read_exr reads a path or bytes, not {type(source).__name__}")
+    limit = Limits().max_pixels if max_pixels is None else int(max_pixels)
+    try:
+        (x0, y0), (x1, y1) = exr.File(io.BytesIO(data), header_only=True).header()["dataWindow"]
+    except (RuntimeError, ValueError, KeyError, TypeError) as exc:
+        raise FileFormatError(f"{name} is not an OpenEXR image this can read ({exc})") from None
+    width, height = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+    if width <= 0 or height <= 0:
+        raise FileFormatError(f"{name} has an empty data window ({width}x{height})")
+    if width * height > limit:
+        raise LimitError("max_pixels", f"{name} is {width}x{height} pixels, over the limit of "
+                         f"{limit}: pass read_exr(..., max_pixels=N) to read it")
+    try:
+        f = exr.File(io.BytesIO(data), separate_channels=True)
+        channels = {key: np.asarray(ch.pixels) for key, ch in f.channels().items()}
+    except (RuntimeError, ValueError, MemoryError) as exc:
+        raise FileFormatError(f"{name}: its pixels cannot be read ({exc})") from None
     return channels, dict(f.header())

@@ -16,7 +16,14 @@ import pytest
 
 pytest.importorskip("OpenEXR")
 
-from shadowmap.renderer import RenderParams, load_scene, read_exr, write_exr  # noqa: E402
+from shadowmap.renderer import (  # noqa: E402
+    FileFormatError,
+    LimitError,
+    RenderParams,
+    load_scene,
+    read_exr,
+    write_exr,
+)
 from shadowmap.renderer.demo import demo_glb  # noqa: E402
 from shadowmap.renderer.exr import exr_bytes  # noqa: E402
 
@@ -50,6 +57,39 @@ def test_bytes_round_trip_keeps_nan_inf_and_attributes(tmp_path):
 
 
 @pytest.mark.gl
+def _with_data_window(data: bytes, x1: int, y1: int) -> bytes:
+    """``data`` (an EXR) with its header's data window's upper corner set to (x1, y1)."""
+    key = b"dataWindow\x00box2i\x00"
+    at = data.index(key) + len(key) + 4  # after the attribute's size
+    return data[:at] + np.array([0, 0, x1, y1], "<i4").tobytes() + data[at + 16:]
+
+
+def test_read_exr_refuses_a_data_window_over_max_pixels_before_reading_pixels():
+    good = exr_bytes({"Z": np.ones((3, 4), np.float32)})
+    hostile = _with_data_window(good, 59_999, 59_999)  # 13 GiB of float32 asked for
+    with pytest.raises(LimitError, match="60000x60000 pixels, over the limit") as info:
+        read_exr(hostile)
+    assert info.value.limit == "max_pixels"
+    with pytest.raises(LimitError):
+        read_exr(good, max_pixels=11)
+    channels, _ = read_exr(bytearray(good), max_pixels=12)
+    assert channels["Z"].shape == (3, 4)
+
+
+@pytest.mark.parametrize("source", [
+    b"", b"garbage", "truncated", "cut short", "/nonexistent/depth.exr", "folder",
+    "nul\x00.exr", 3, None,
+])
+def test_read_exr_of_anything_else_is_a_file_format_error(source, tmp_path):
+    good = exr_bytes({"Z": np.ones((3, 4), np.float32)})
+    source = {"truncated": good[:40], "cut short": good[:-10],
+              "folder": tmp_path}.get(source, source)  # type: ignore[arg-type]
+    with pytest.raises(FileFormatError) as info:
+        read_exr(source)  # type: ignore[arg-type]
+    assert info.value.code == "invalid_file"
+    assert "\x00" not in str(info.value)
+
+
 def test_encoded_outputs_equal_the_result_arrays(renderer):
     from shadowmap.app.encode import MEDIA_EXR, encode_outputs
 
