@@ -17,6 +17,7 @@ import dataclasses
 import json
 import os
 import posixpath
+import stat
 import threading
 import weakref
 from collections.abc import Callable, Mapping, Sequence
@@ -535,6 +536,49 @@ class FolderResources(dict[str, bytes]):
         self.folder = folder
 
 
+def read_regular_file(path: str | Path, what: str, max_bytes: int | None = None) -> bytes:
+    """The content of the regular file at ``path``, at most ``max_bytes`` of it.
+
+    The file is opened without waiting and checked before anything is read: a FIFO would block
+    the read until something writes to it (forever, in a batch), and a device such as
+    ``/dev/zero`` or ``/dev/urandom`` would never end it, filling memory. Symbolic links are
+    followed to what they name, which must be a regular file too.
+
+    Parameters
+    ----------
+    path : path
+    what : str
+        How errors name the file, e.g. ``"buffer 0 (scene.bin)"``.
+    max_bytes : int, optional
+        Most bytes read: a larger file (or one that grows past it while read) raises
+        :class:`LimitError` (``max_request_bytes``).
+
+    Raises
+    ------
+    OSError
+        It cannot be opened or read (the caller says what it was for).
+    SceneError
+        It is a folder, a FIFO, a device or a socket.
+    LimitError
+        It holds more than ``max_bytes``.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    with open(fd, "rb", buffering=0, closefd=True) as f:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = ("a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(
+                st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "a device")
+            raise SceneError(f"{what} is {kind}, not a regular file")
+        if max_bytes is not None and st.st_size > max_bytes:
+            raise LimitError("max_request_bytes", f"{what} holds {st.st_size} bytes, over the "
+                             f"{max_bytes} this request may read")
+        os.set_blocking(fd, True)
+        data = f.read() if max_bytes is None else f.read(max_bytes + 1)
+    if max_bytes is not None and len(data) > max_bytes:
+        raise LimitError("max_request_bytes", f"{what} grew past {max_bytes} bytes while read")
+    return data
+
+
 def gltf_resources(path: str | Path, data: bytes,
                    max_bytes: int | None = None) -> FolderResources:
     """The external files a ``.gltf`` names (buffers and images, not ``data:`` URIs), read from
@@ -590,19 +634,20 @@ def gltf_resources(path: str | Path, data: bytes,
             if name in out:
                 continue
             file = root / name
+            left = None if max_bytes is None else max_bytes - total
+            what = f"{kind[:-1]} {i} ({name} beside {path.name})"
             try:
-                size = file.stat().st_size
-                if max_bytes is not None and total + size > max_bytes:
-                    raise LimitError("max_request_bytes",
-                                     f"the files {path.name} names exceed {max_bytes} bytes "
-                                     f"(at {kind[:-1]} {i}, {name})")
-                out[name] = file.read_bytes()
+                out[name] = read_regular_file(file, what, left)
             except FileNotFoundError:
                 continue
             except OSError as exc:
                 raise SceneError(f"{kind[:-1]} {i}: cannot read {name} beside {path.name}: "
                                  f"{exc.strerror}") from None
-            total += size
+            except LimitError:
+                raise LimitError("max_request_bytes",
+                                 f"the files {path.name} names exceed {max_bytes} bytes "
+                                 f"(at {kind[:-1]} {i}, {name})") from None
+            total += len(out[name])
     return out
 
 
@@ -750,13 +795,15 @@ def read_source(source: object, file_type: str | None, resources: Mapping[str, b
     Raises
     ------
     SceneError
-        The file cannot be read, or ``source`` is neither a path nor bytes (``None``, a
-        number, a trimesh point cloud, ...).
+        The file cannot be read or is no regular file (:func:`read_regular_file`), or
+        ``source`` is neither a path nor bytes (``None``, a number, a trimesh point cloud, ...).
+    LimitError
+        The file, or the files a ``.gltf`` names, hold more than ``max_bytes``.
     """
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         try:
-            data = path.read_bytes()
+            data = read_regular_file(path, str(path), max_bytes)
         except OSError as exc:
             raise SceneError(f"cannot read {path}: {exc.strerror}") from None
         except ValueError as exc:  # a NUL in the path

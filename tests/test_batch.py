@@ -25,6 +25,7 @@ from batch_jobs import (
 )
 from shadowmap.batch import render_many
 from shadowmap.batch.manifest import SceneHasher, load_manifest, parse_job
+from shadowmap.renderer import Limits
 
 pytestmark = pytest.mark.gl
 
@@ -320,3 +321,29 @@ def test_library_does_not_import_batch():
     for path in root.rglob("*.py"):
         text = path.read_text()
         assert "shadowmap.batch" not in text and "from ..batch" not in text, path
+
+
+def test_scene_files_that_are_no_regular_files_or_too_large_are_error_records(tmp_path, models):
+    """A FIFO would block the batch's reading of it forever and /dev/zero would fill memory:
+    each is an error record before anything is read, as is a file over the limits'
+    ``max_request_bytes``; the other jobs run."""
+    os.mkfifo(tmp_path / "pipe.glb")
+    (tmp_path / "zero.glb").symlink_to("/dev/zero")
+    (tmp_path / "Duck.glb").write_bytes((models / "Duck.glb").read_bytes())
+    entries = [{"id": name, "scene": f"{name}.glb", "params": SIZE}
+               for name in ("pipe", "zero", "Duck")]
+    report = render_many(entries, tmp_path / "out", base_dir=tmp_path, workers=1)
+    recs = {r["id"]: r for r in report.records}
+    assert recs["Duck"]["status"] == "ok"
+    # A scene's path is resolved: the link is named by what it links to.
+    for name, path in (("pipe", "pipe.glb is a FIFO"), ("zero", "/dev/zero is a device")):
+        assert recs[name]["status"] == "error", name
+        assert recs[name]["error"]["error"] == "invalid_scene"
+        assert f"{path}, not a regular file" in recs[name]["error"]["detail"]
+    # A file of 1.1 MB against a limit of 0.5 MB, which the request itself stays within.
+    (tmp_path / "big.glb").write_bytes((models / "Duck.glb").read_bytes() + bytes(10**6))
+    report = render_many([{"id": "big", "scene": "big.glb", "params": SIZE}], tmp_path / "small",
+                         base_dir=tmp_path, workers=1, limits=Limits(max_request_bytes=500_000))
+    (rec,) = report.records
+    assert rec["status"] == "error" and rec["error"]["limit"] == "max_request_bytes"
+    assert "over the 500000 this request may read" in rec["error"]["detail"]

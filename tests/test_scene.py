@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 from pathlib import PurePosixPath
 
 import numpy as np
@@ -46,6 +47,28 @@ def test_sources_are_paths_or_bytes(models):
         load_scene(str(path) + "\0")
     with pytest.raises(SceneError, match="Is a directory"):
         load_scene(models)
+
+
+def test_files_that_are_no_regular_files_are_refused_before_reading(models, tmp_path):
+    """A FIFO would block the read until something writes to it, a device such as /dev/zero
+    would never end it: each is a SceneError at once, for the scene and for a file a .gltf
+    names; a file over ``max_request_bytes`` is a LimitError before it is read."""
+    os.mkfifo(tmp_path / "pipe.glb")
+    (tmp_path / "zero.glb").symlink_to("/dev/zero")
+    for name, kind in (("pipe.glb", "a FIFO"), ("zero.glb", "a device")):
+        with pytest.raises(SceneError, match=f"{name} is {kind}, not a regular file"):
+            load_scene(tmp_path / name)
+    os.mkfifo(tmp_path / "buf.bin")
+    (tmp_path / "res.gltf").write_text(json.dumps(
+        {"asset": {"version": "2.0"}, "buffers": [{"uri": "buf.bin", "byteLength": 4}]}))
+    with pytest.raises(SceneError, match=r"buffer 0 \(buf.bin beside res.gltf\) is a FIFO"):
+        load_scene(tmp_path / "res.gltf")
+    duck = models / "Duck.glb"
+    size = duck.stat().st_size
+    with pytest.raises(LimitError, match=f"holds {size} bytes, over the {size - 1}") as info:
+        load_scene(duck, limits=Limits(max_request_bytes=size - 1))
+    assert info.value.limit == "max_request_bytes"
+    assert load_scene(duck, limits=Limits(max_request_bytes=10 * size)).triangle_count > 0
 
 
 def test_node_transforms_are_applied(models):

@@ -42,7 +42,7 @@ from shadowmap.renderer import Limits, RenderParams, ShadowMapError
 from shadowmap.renderer.cache import content_key
 from shadowmap.renderer.errors import SceneError
 from shadowmap.renderer.limits import check_request
-from shadowmap.renderer.scene import gltf_resources
+from shadowmap.renderer.scene import gltf_resources, read_regular_file
 
 from .errors import JobError, error_of
 
@@ -73,6 +73,9 @@ class SceneRef:
 
     builtin: str | None = None
     path: Path | None = None
+    #: Most bytes read for the scene: its file, and apart from it the files a ``.gltf`` names
+    #: (the limits' ``max_request_bytes``; None: no bound but the file's own size).
+    max_bytes: int | None = None
 
     @property
     def key(self) -> str:
@@ -85,9 +88,12 @@ class SceneRef:
         Raises
         ------
         SceneError
-            A missing or unreadable file, or a URI that leaves the file's folder
-            (:func:`~shadowmap.renderer.scene.gltf_resources`; a file it names that is missing
-            is the loader's to report).
+            A missing or unreadable file, one that is no regular file (a FIFO, a device: see
+            :func:`~shadowmap.renderer.scene.read_regular_file`), or a URI that leaves the
+            file's folder (:func:`~shadowmap.renderer.scene.gltf_resources`; a file it names
+            that is missing is the loader's to report).
+        LimitError
+            More than :attr:`max_bytes`.
         """
         if self.builtin == "demo":
             from shadowmap.renderer.demo import demo_glb
@@ -95,11 +101,12 @@ class SceneRef:
             return SceneBytes(demo_glb(), None, "glb")
         assert self.path is not None
         try:
-            data = self.path.read_bytes()
+            data = read_regular_file(self.path, str(self.path), self.max_bytes)
         except OSError as exc:
             raise SceneError(f"cannot read {self.path}: {exc.strerror}") from None
         suffix = self.path.suffix.lower().lstrip(".")
-        resources = gltf_resources(self.path, data) if suffix == "gltf" else None
+        resources = (gltf_resources(self.path, data, self.max_bytes) if suffix == "gltf"
+                     else None)
         return SceneBytes(data, resources, suffix or None)
 
 
@@ -241,7 +248,8 @@ def parse_job(entry: object, base_dir: Path, line: int | None = None,
         if unknown:
             raise JobError("invalid_job", f"unknown field(s) {', '.join(unknown)}; a job has "
                            f"{', '.join(sorted(_JOB_FIELDS))}")
-        job.scene = _scene_ref(entry.get("scene"), base_dir)
+        job.scene = _scene_ref(entry.get("scene"), base_dir,
+                               (limits or Limits()).max_request_bytes)
         params = _plain(entry.get("params", {}), "params")
         if not isinstance(params, dict):
             raise JobError("invalid_params", "params must be a JSON object")
@@ -298,7 +306,7 @@ def _plain(value: Any, what: str) -> Any:
                        f"numbers, booleans, null): {exc}") from None
 
 
-def _scene_ref(value: object, base_dir: Path) -> SceneRef:
+def _scene_ref(value: object, base_dir: Path, max_bytes: int | None = None) -> SceneRef:
     if isinstance(value, dict):
         if value == {"builtin": "demo"}:
             return SceneRef(builtin="demo")
@@ -309,7 +317,7 @@ def _scene_ref(value: object, base_dir: Path) -> SceneRef:
     if not isinstance(value, str) or not value or "\0" in value:
         raise JobError("invalid_job", "scene must be a path (relative to the manifest) or "
                        '{"builtin": "demo"}')
-    return SceneRef(path=(base_dir / value).resolve())
+    return SceneRef(path=(base_dir / value).resolve(), max_bytes=max_bytes)
 
 
 def load_manifest(path: str | Path, limits: Limits | None = None,
