@@ -459,6 +459,8 @@ def _batch(args: argparse.Namespace) -> int:
             check_seconds(args.timeout, "--timeout")
         if args.max_job_renders < 1:
             raise ValueError("--max-job-renders must be at least 1")
+        if args.max_line_bytes < 1:
+            raise ValueError("--max-line-bytes must be at least 1")
     except ValueError as exc:
         return _fail(str(exc))
     if args.ray is not None:
@@ -472,7 +474,8 @@ def _batch(args: argparse.Namespace) -> int:
         report = render_many(args.manifest, args.out, workers=args.workers, ray=args.ray,
                              actors=args.workers if args.ray is not None else None,
                              timeout=args.timeout, progress=progress, resume=not args.force,
-                             max_job_renders=args.max_job_renders)
+                             max_job_renders=args.max_job_renders,
+                             max_line_bytes=args.max_line_bytes)
     except OSError as exc:
         failure = (f"{exc.filename or args.manifest}: {exc.strerror or exc}", 2)
     except (RuntimeError, RenderError) as exc:
@@ -556,7 +559,7 @@ SERVE_SETTINGS: dict[str, tuple[type, str]] = {
 
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
-    from .batch.manifest import MAX_JOB_RENDERS
+    from .batch.manifest import MAX_JOB_RENDERS, MAX_LINE_BYTES
     from .hosts import MAX_WORKERS_PER_CPU
     from .renderer.params import EXAMPLE_PARAMS
 
@@ -633,6 +636,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--max-job-renders", type=int, default=MAX_JOB_RENDERS, metavar="N",
                    help="renders one job may ask for (views x light lists); a job asking for "
                    f"more is recorded as an error (default {MAX_JOB_RENDERS})")
+    b.add_argument("--max-line-bytes", type=int, default=MAX_LINE_BYTES, metavar="N",
+                   help="longest manifest line read; a longer one is recorded as an error "
+                   f"(default {MAX_LINE_BYTES})")
     b.add_argument("--force", action="store_true",
                    help="render every job again, even those already done")
     b.add_argument("--quiet", action="store_true",

@@ -347,3 +347,27 @@ def test_scene_files_that_are_no_regular_files_or_too_large_are_error_records(tm
     (rec,) = report.records
     assert rec["status"] == "error" and rec["error"]["limit"] == "max_request_bytes"
     assert "over the 500000 this request may read" in rec["error"]["detail"]
+
+
+def test_manifest_bytes_a_text_reader_would_stop_at(tmp_path):
+    """A byte order mark (as some editors write) and CRLF line ends are read; a line that is not
+    UTF-8, or longer than ``max_line_bytes``, is an error record and the next lines are read;
+    before, the first raised UnicodeDecodeError out of the batch and a BOM made line 1 an
+    error."""
+    job = json.dumps({"id": "demo", "scene": {"builtin": "demo"}, "params": SIZE}).encode()
+    path = tmp_path / "m.jsonl"
+    path.write_bytes(b"\xef\xbb\xbf" + job + b"\r\n\xff\xfe not text\r\n" + b"x" * 5000 + b"\r\n"
+                     + job.replace(b'"demo",', b'"last",', 1) + b"\r\n")
+    jobs = load_manifest(path, max_line_bytes=1000)
+    assert [(j.id, j.error.code if j.error else None) for j in jobs] == [
+        ("demo", None), ("line-2", "invalid_job"), ("line-3", "limit_exceeded"), ("last", None)]
+    assert jobs[1].error.detail == "line 2 is not UTF-8 text (byte 1)"
+    assert jobs[2].error.extra == {"limit": "max_line_bytes"}
+    assert "line 3 is over 1000 bytes" in jobs[2].error.detail
+    assert load_manifest(path, max_line_bytes=5002)[2].error.code == "invalid_job"  # not JSON
+    run = [sys.executable, "-m", "shadowmap", "batch", str(path), "--out", str(tmp_path / "o"),
+           "--quiet", "--max-line-bytes", "1000"]
+    proc = subprocess.run(run, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "2 ok, 2 error, 0 failed" in proc.stdout
+    assert "error: line-3: limit_exceeded: line 3 is over 1000 bytes" in proc.stderr

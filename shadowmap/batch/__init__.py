@@ -25,7 +25,15 @@ from shadowmap.renderer import Limits
 
 from .errors import JobError
 from .local import LocalPool, default_workers
-from .manifest import MAX_JOB_RENDERS, Job, SceneHasher, SceneRef, load_manifest, parse_job
+from .manifest import (
+    MAX_JOB_RENDERS,
+    MAX_LINE_BYTES,
+    Job,
+    SceneHasher,
+    SceneRef,
+    load_manifest,
+    parse_job,
+)
 from .results import ResultsLog, clean_partial, write_job_files
 from .worker import JobOutcome, Task
 
@@ -80,9 +88,9 @@ class BatchReport:
 
 
 def _jobs(jobs: Iterable[Job | dict[str, Any]] | str | Path, base_dir: Path,
-          limits: Limits, max_job_renders: int) -> list[Job]:
+          limits: Limits, max_job_renders: int, max_line_bytes: int) -> list[Job]:
     if isinstance(jobs, (str, Path)):
-        return load_manifest(jobs, limits, max_job_renders)
+        return load_manifest(jobs, limits, max_job_renders, max_line_bytes)
     out = []
     for i, job in enumerate(jobs, start=1):
         out.append(job if isinstance(job, Job)
@@ -106,7 +114,8 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
                 platform: str | None = None, resume: bool = True,
                 base_dir: str | Path | None = None,
                 progress: Progress | None = None,
-                max_job_renders: int = MAX_JOB_RENDERS) -> BatchReport:
+                max_job_renders: int = MAX_JOB_RENDERS,
+                max_line_bytes: int = MAX_LINE_BYTES) -> BatchReport:
     """Render every job to ``out_dir/<job id>/`` and record each in ``out_dir/results.jsonl``.
 
     Parameters
@@ -129,6 +138,9 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
     max_job_renders : int
         Renders one job may ask for (its views times its light lists); a job asking for more
         is an ``error`` record (``limit_exceeded``), refused before any of them is validated.
+    max_line_bytes : int
+        Longest manifest line read (bytes); a longer one is an ``error`` record
+        (``limit_exceeded``, limit ``max_line_bytes``), passed over without being held.
     timeout : float, optional
         Seconds one job may run before its worker is killed (tried once more, then ``failed``);
         above 0 and at most a week (:data:`shadowmap.hosts.MAX_SECONDS`), else ValueError.
@@ -158,7 +170,7 @@ def render_many(jobs: Iterable[Job | dict[str, Any]] | str | Path, out_dir: str 
     limits = limits or Limits()
     out = Path(out_dir)
     job_list = _jobs(jobs, Path(base_dir) if base_dir is not None else Path.cwd(), limits,
-                     max_job_renders)
+                     max_job_renders, max_line_bytes)
     hasher = SceneHasher()
     for job in job_list:
         hasher.hash_inputs(job)

@@ -28,13 +28,15 @@ Blank lines and lines starting with ``#`` are skipped. A line that is not a vali
 
 from __future__ import annotations
 
+import codecs
 import hashlib
 import json
 import os
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -57,6 +59,11 @@ _JOB_FIELDS = {"id", "scene", "params", "views", "lights"}
 #: validated before the batch starts and gets its own folder, so a short manifest line must not
 #: expand into millions of them (``render_many(max_job_renders=...)``, ``--max-job-renders``).
 MAX_JOB_RENDERS = 10_000
+#: Longest manifest line read by default, in bytes (``load_manifest(max_line_bytes=...)``,
+#: ``--max-line-bytes``): a job is a few hundred bytes, 10,000 views a few hundred kB. A longer
+#: line is an error record, passed over without being held in memory: a line is read whole
+#: before it is parsed, and a file with no newline would otherwise be read whole.
+MAX_LINE_BYTES = 16 * 2**20
 
 
 @dataclass(frozen=True)
@@ -321,9 +328,15 @@ def _scene_ref(value: object, base_dir: Path, max_bytes: int | None = None) -> S
 
 
 def load_manifest(path: str | Path, limits: Limits | None = None,
-                  max_job_renders: int = MAX_JOB_RENDERS) -> list[Job]:
+                  max_job_renders: int = MAX_JOB_RENDERS,
+                  max_line_bytes: int = MAX_LINE_BYTES) -> list[Job]:
     """Every job of a JSON Lines manifest, in order (bad lines as jobs with an error; see
     :func:`parse_job` for ``limits`` and ``max_job_renders``).
+
+    The file is UTF-8 (a byte order mark first is allowed, as some editors write one), one
+    JSON object per line, LF or CRLF; blank lines and lines starting with ``#`` are passed
+    over. A line that is not UTF-8 or not JSON, or longer than ``max_line_bytes``, is an
+    error record and the rest are read. A FIFO (``<(generate-jobs)``) is read as it comes.
 
     Raises
     ------
@@ -333,20 +346,47 @@ def load_manifest(path: str | Path, limits: Limits | None = None,
     path = Path(path)
     base = path.resolve().parent
     jobs = []
-    with open(path, encoding="utf-8") as f:
-        for n, text in enumerate(f, start=1):
-            text = text.strip()
+    with open(path, "rb") as f:
+        for n, raw in enumerate(_lines(f, max_line_bytes), start=1):
+            def bad(code: str, detail: str, n: int = n, **extra: Any) -> None:
+                jobs.append(Job(f"line-{n}", line=n, error=JobError(code, detail, **extra)))
+
+            if raw is None:
+                bad("limit_exceeded", f"line {n} is over {max_line_bytes} bytes",
+                    limit="max_line_bytes")
+                continue
+            if n == 1 and raw.startswith(codecs.BOM_UTF8):
+                raw = raw[len(codecs.BOM_UTF8):]
+            try:
+                text = raw.decode("utf-8").strip()
+            except UnicodeDecodeError as exc:
+                bad("invalid_job", f"line {n} is not UTF-8 text (byte {exc.start + 1})")
+                continue
             if not text or text.startswith("#"):
                 continue
             try:
                 entry = json.loads(text, parse_constant=_no_constants)
             except (ValueError, RecursionError) as exc:
                 why = "it nests too deep" if isinstance(exc, RecursionError) else str(exc)
-                jobs.append(Job(f"line-{n}", line=n,
-                                error=JobError("invalid_job", f"line {n} is not JSON: {why}")))
+                bad("invalid_job", f"line {n} is not JSON: {why}")
                 continue
             jobs.append(parse_job(entry, base, n, limits, max_job_renders))
     return _unique_ids(jobs)
+
+
+def _lines(f: BinaryIO, max_bytes: int) -> Iterator[bytes | None]:
+    """The lines of ``f`` (with their line ends), None for one over ``max_bytes``: that one is
+    read on to its end a chunk at a time and dropped."""
+    while True:
+        line = f.readline(max_bytes + 1)
+        if not line:
+            return
+        if len(line) > max_bytes and not line.endswith(b"\n"):
+            while (rest := f.readline(1 << 20)) and not rest.endswith(b"\n"):
+                pass
+            yield None
+            continue
+        yield line
 
 
 def _no_constants(name: str) -> float:
