@@ -15,14 +15,13 @@ from collections.abc import AsyncIterable
 from dataclasses import dataclass, field
 
 from shadowmap.renderer import RenderParams, SceneError
+from shadowmap.renderer.limits import MAX_PARAMS_BYTES
 from shadowmap.renderer.params import parse_json
 
 from .errors import ServiceError
 from .settings import Settings
 
 SCENE_SUFFIXES = (".glb", ".gltf")
-# A real request is a few kB even with 8 lights; the cap keeps parsing on the event loop cheap.
-MAX_PARAMS_BYTES = 64 * 1024
 ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # local file header; empty archive
 GLB_MAGIC = b"glTF"
 

@@ -44,6 +44,10 @@ MIN_MAP_SIZE = 16
 #: Faces of a point light's cube map; every other light has one.
 CUBE_FACES = 6
 MIB = 2**20
+#: Largest request params, as JSON text: a real request is a few kB even with 8 lights. The
+#: service refuses a longer ``params`` part (413, ``max_params_bytes``) and the command line a
+#: longer ``--params`` file, before parsing either.
+MAX_PARAMS_BYTES = 64 * 1024
 #: Largest coordinate, relative to the scene's centre, the GPU is given: float32 holds 3.4e38,
 #: and the shaders square distances (a length, a dot product), so 1e18 squared still fits.
 MAX_COORDINATE = 1e18

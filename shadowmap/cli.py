@@ -123,8 +123,17 @@ def _render(args: argparse.Namespace) -> int:
 
     params: dict = {}
     if args.params:
+        from .renderer.limits import MAX_PARAMS_BYTES
+
         try:
-            params = json.loads(Path(args.params).read_text(), parse_constant=_no_constants)
+            # At most one byte past the limit: a FIFO (--params <(...)) is read as it comes,
+            # and /dev/zero is not read to the end of memory.
+            with open(args.params, "rb") as f:
+                text = f.read(MAX_PARAMS_BYTES + 1)
+            if len(text) > MAX_PARAMS_BYTES:
+                return _fail(f"{args.params} is over {MAX_PARAMS_BYTES} bytes: a request's "
+                             "params are a few kB")
+            params = json.loads(text.decode("utf-8-sig"), parse_constant=_no_constants)
         except OSError as exc:
             return _fail(f"cannot read {args.params}: {exc.strerror}")
         except ValueError as exc:

@@ -80,12 +80,17 @@ def test_help_documents_the_json(models):
         pytest.param('{"lights": [{"direction": [0, 0, 0]}]}', ["{scene}", "--params", "{params}"],
                      "zero length", marks=pytest.mark.gl),
         ('{"width": NaN}', ["{scene}", "--params", "{params}"], "NaN"),
+        (b"\xff\xfe{}", ["{scene}", "--params", "{params}"], "can't decode byte 0xff"),
+        # Read up to one byte past the limit: /dev/zero used to be read until memory ran out.
+        (None, ["{scene}", "--params", "/dev/zero"], "/dev/zero is over 65536 bytes"),
         (None, ["{bad}"], "glTF"),
     ],
 )
 def test_bad_input_exits_nonzero_with_one_line(models, tmp_path, setup, args, message):
     params = tmp_path / "p.json"
-    if setup is not None:
+    if isinstance(setup, bytes):
+        params.write_bytes(setup)
+    elif setup is not None:
         params.write_text(setup)
     bad = tmp_path / "bad.glb"
     bad.write_bytes(b"glTF garbage")
@@ -254,6 +259,21 @@ def test_camera_orbit_equals_the_explicit_eye_and_flags_override_params(models, 
     np.testing.assert_array_equal(first, np.asarray(Image.open(b / "color.png")))
     np.testing.assert_array_equal(first, np.asarray(Image.open(tmp_path / "c.png")))
     assert (b / "report.json").is_file()
+
+
+@pytest.mark.gl
+def test_params_from_a_fifo_as_a_shell_gives_them(models, tmp_path):
+    """``--params <(...)``: the file is a pipe, read as it comes (with a byte order mark, as
+    some editors write one)."""
+    fifo = tmp_path / "params.json"
+    os.mkfifo(fifo)
+    proc = subprocess.Popen([sys.executable, "-m", "shadowmap", "render", str(models / "Duck.glb"),
+                             "--params", str(fifo), "-o", str(tmp_path / "c.png")],
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    with open(fifo, "wb") as f:
+        f.write(b'\xef\xbb\xbf{"width": 64, "height": 48}')
+    assert proc.wait(120) == 0, proc.stderr.read() if proc.stderr else ""
+    assert Image.open(tmp_path / "c.png").size == (64, 48)
 
 
 @pytest.mark.parametrize(
