@@ -270,10 +270,18 @@ class Renderer:
     # -- lifetime ----------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Release every GL object and the context. Safe to call twice."""
+        """Release every GL object and the context. Safe to call twice.
+
+        In a forked copy of the process that made the renderer, nothing is released (the GL
+        objects are the parent's, and a GL call there could wait for ever): the renderer is
+        only marked closed.
+        """
         if self._closed:
             return
         self._closed = True
+        if self.context.forked:
+            self.context.release()
+            return
         try:
             self.context.make_current()
             self._grounded.clear()

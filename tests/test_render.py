@@ -259,6 +259,41 @@ def test_context_refuses_other_threads(renderer, demo):
     assert errors and "thread" in str(errors[0])
 
 
+def test_a_forked_process_is_refused_and_the_parent_renders_on(renderer, demo):
+    """A forked copy of the process (a multiprocessing pool's default start method on Linux,
+    with a renderer made before it) has the context's memory but none of the driver's threads:
+    its first render used to wait for ever. It is a RenderError now, its close() touches no GL,
+    and the parent's renderer is unharmed."""
+    import os
+    import time
+
+    params = RenderParams(width=32, height=24)
+    before = renderer.render(demo, params).color
+    pid = os.fork()
+    if pid == 0:  # the child: exit status 0 only when both went as they should
+        code = 1
+        try:
+            renderer.render(demo, params)
+        except RenderError as exc:
+            code = 0 if "forked copy" in str(exc) else 2
+        try:
+            renderer.close()
+            renderer.close()
+        except BaseException:  # noqa: BLE001 - any failure is the child's exit status
+            code = 3
+        os._exit(code)
+    deadline = time.monotonic() + 60
+    while (done := os.waitpid(pid, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if done[0] == 0:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child hung")
+    assert os.waitstatus_to_exitcode(done[1]) == 0
+    assert not renderer.closed
+    np.testing.assert_array_equal(renderer.render(demo, params).color, before)
+
+
 def test_map_pool_never_frees_a_map_the_frame_still_samples(renderer, demo):
     """A frame with more maps than the framebuffer pool holds, at sizes the pool has not seen,
     keeps every one of its maps alive until the camera pass has sampled them."""

@@ -34,6 +34,7 @@ class GLContext:
     def __init__(self, platform: str | None = None) -> None:
         self.platform = select_platform(platform)
         self.thread = threading.get_ident()
+        self.pid = os.getpid()
         try:
             module = pyrender_platform(self.platform)
             if self.platform == "egl":
@@ -54,7 +55,23 @@ class GLContext:
         self.version = GL.glGetString(GL.GL_VERSION).decode()
         self.max_texture_size = int(GL.glGetIntegerv(GL.GL_MAX_TEXTURE_SIZE))
 
+    @property
+    def forked(self) -> bool:
+        """Whether this is a forked copy of the process that made the context.
+
+        A fork copies the context's memory but none of the driver's threads (llvmpipe's
+        rasterizer threads, a GPU driver's): a GL call there can wait for ever on work no
+        thread will do, and its main thread has the same identity as the parent's.
+        """
+        return os.getpid() != self.pid
+
     def check_thread(self) -> None:
+        if self.forked:
+            raise RenderError(
+                f"this renderer's GL context was made in process {self.pid}, and this is a "
+                f"forked copy of it ({os.getpid()}): make a Renderer in each process (e.g. in "
+                "a multiprocessing pool's initializer), or use the 'spawn' or 'forkserver' "
+                "start method")
         if threading.get_ident() != self.thread:
             raise RenderError("a GL context must be used from the thread that created it")
 
@@ -69,6 +86,8 @@ class GLContext:
         if self._platform is None:
             return
         platform, self._platform = self._platform, None
+        if self.forked:
+            return  # the parent's context, which is not this process's to destroy (nor can it)
         if self.platform != "egl":
             platform.delete_context()
             return
