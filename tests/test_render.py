@@ -244,6 +244,17 @@ def test_close_is_idempotent_and_final():
         r.render(load_scene(demo_glb()))
 
 
+@pytest.mark.parametrize("platform, message", [
+    ("bogus", "unsupported GL platform 'bogus': use one of egl, osmesa"),
+    (3, "platform must be one of egl, osmesa (or None for the default), not a value of type int"),
+])
+def test_an_unknown_platform_is_a_render_error_before_any_context(platform, message):
+    from shadowmap.renderer import Renderer
+
+    with pytest.raises(RenderError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        Renderer(platform=platform)
+
+
 def test_context_refuses_other_threads(renderer, demo):
     errors = []
 

@@ -73,6 +73,9 @@ def select_platform(preferred: str | None = None) -> str:
     str
         The platform in use.
     """
+    if preferred is not None and not isinstance(preferred, str):
+        raise RenderError(f"platform must be one of {', '.join(PLATFORMS)} (or None for the "
+                          f"default), not a value of type {type(preferred).__name__}")
     current = os.environ.get("PYOPENGL_PLATFORM", "").lower() or None
     wanted = (preferred or current or "").lower() or None
     if wanted is not None and wanted not in PLATFORMS:
