@@ -474,7 +474,10 @@ def test_fuzz_scale_invariance(renderer):
     pixels misclassified), or it says why not (a warning the other has not). Float64 rounds a
     camera or light placed far out, so the two pictures may differ; each is checked against
     the truth for its own inputs. A tiny Duck 1.8e8 units out was seen 1 % nearer or farther
-    than it is, unsaid (shadow IoU 0.70 against 0.99 at the origin)."""
+    than it is, unsaid (shadow IoU 0.70 against 0.99 at the origin). One pixel more
+    misclassified is always within the margin: seed 3107's case 276 evaluated 80 pixels, of
+    which the reference shadowed one at a shadow's edge that the render lit (IoU 0, 1.25 %
+    misclassified), the pictures otherwise alike."""
     import random
 
     from shadowmap.renderer import testing as T
@@ -535,8 +538,11 @@ def test_fuzz_scale_invariance(renderer):
         here, there = results
         (a,), (b,) = here.metrics, there.metrics
         compared += 1
+        # One pixel more is the finest difference a metric over few evaluated pixels can show
+        # (SMALL frames evaluate about a hundred): a shadow edge one pixel over is not a loss.
+        one_pixel = 100.0 / max(b["pixels"], 1)
         if (b["iou"] >= a["iou"] - 0.05
-                or b["misclassified_pct"] <= a["misclassified_pct"] + 1.0):
+                or b["misclassified_pct"] <= a["misclassified_pct"] + max(1.0, one_pixel) + 1e-9):
             continue
         if set(there.warnings) - set(here.warnings):
             continue
