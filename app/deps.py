@@ -243,7 +243,9 @@ async def read_render_input(request: Request, settings: SettingsDep) -> RenderIn
         finally:
             await form.close()
     elif media == "application/json":
-        if body.strip():
+        # An empty body is no body (the params are optional); anything else must be JSON,
+        # whitespace alone included (no JSON text is empty).
+        if body:
             texts.append(body)
             where = "body"
     elif media in RAW_SCENE_TYPES or (not media and body):

@@ -723,6 +723,13 @@ def test_bad_requests(client):
     assert_error(client.post("/render", headers={"Accept": "text/html"}), 406, "not_acceptable")
     assert_error(client.post("/render", params={"params": "{}"}, content=b"{}",
                              headers={"Content-Type": "application/json"}), 422, "invalid_params")
+    # A JSON body of whitespace alone is no JSON (an empty one is no body: the demo's params).
+    for blank in (b"\r", b" \n\t"):
+        assert_error(client.post("/render", content=blank,
+                                 headers={"Content-Type": "application/json"}), 422,
+                     "invalid_params")
+    empty = client.post("/render", content=b"", headers={"Content-Type": "application/json"})
+    assert empty.status_code == 200 and empty.headers["content-type"] == "image/png"
     assert_error(client.post("/render", content=b"--x\r\nbroken",
                              headers={"Content-Type": "multipart/form-data; boundary=x"}), 400,
                  "bad_request")
