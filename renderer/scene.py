@@ -53,6 +53,16 @@ GROUND_GAP = 1e-6
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+def _read_only(*arrays: np.ndarray | None) -> None:
+    """Make a scene's arrays read-only: a renderer keeps what it read of a scene (its GPU
+    upload, its instance arrays, its plans) for as long as the scene lives, so a change in place
+    would go unseen and draw the old content. Writing to one raises ``ValueError`` instead;
+    changed content is a new :class:`Scene`."""
+    for a in arrays:
+        if isinstance(a, np.ndarray):
+            a.flags.writeable = False
+
+
 @dataclass(frozen=True, eq=False)
 class Material:
     """The parts of a glTF metallic-roughness material this renderer honours.
@@ -79,6 +89,9 @@ class Material:
     double_sided: bool = False
     unlit: bool = False
 
+    def __post_init__(self) -> None:
+        _read_only(self.base_color, self.texture)
+
     @property
     def shadow_cutoff(self) -> float | None:
         """Alpha below which the surface casts no shadow: its cutoff for MASK,
@@ -96,9 +109,12 @@ class Material:
         return self.shadow_cutoff is not None and self.texture is not None
 
 
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class Primitive:
     """One triangle mesh in its local frame (a glTF mesh primitive).
+
+    Frozen, its arrays read-only (:func:`_read_only`): a renderer keeps what it read of a scene,
+    so changed content is a new primitive in a new :class:`Scene` (``dataclasses.replace``).
 
     Attributes
     ----------
@@ -123,6 +139,9 @@ class Primitive:
     colors: np.ndarray | None = None
     name: str = ""
 
+    def __post_init__(self) -> None:
+        _read_only(self.positions, self.normals, self.indices, self.uv, self.colors)
+
     @property
     def local_bounds(self) -> np.ndarray:
         """ndarray, shape (2, 3): axis-aligned min and max corner in the local frame."""
@@ -132,6 +151,12 @@ class Primitive:
 @dataclass(eq=False)
 class Instance:
     """A primitive placed in the world by a node.
+
+    A scene's loaders and builders make its instances' arrays read-only (rows of one read-only
+    array, made once for all of them), as :class:`Primitive`'s are. An instance is not frozen,
+    as a file may hold 100,000 and a frozen dataclass costs more to make, but changing one in a
+    scene a renderer has read is not seen (:func:`instance_arrays`): build a new
+    :class:`Scene`.
 
     Attributes
     ----------
@@ -251,8 +276,10 @@ class Scene:
         )
         m = np.eye(4)
         m[:3, 3] = c
+        bounds = np.stack([pos.min(axis=0), pos.max(axis=0)])
+        _read_only(m, bounds)
         inst = Instance(len(self.primitives), m, cast_shadow=False, receive_shadow=True,
-                        name="ground", bounds=np.stack([pos.min(axis=0), pos.max(axis=0)]))
+                        name="ground", bounds=bounds)
         grounded = Scene(self.primitives + [ground], self.instances + [inst], self.cameras,
                          self.lights, key=self.key + ":ground" if self.key else "",
                          focus=np.stack([lo, hi]) if self.focus is None else self.focus,
@@ -690,7 +717,7 @@ def _material(visual: Any) -> tuple[Material, np.ndarray | None, np.ndarray | No
             img = mat.image
         if img is not None and getattr(visual, "uv", None) is not None:
             texture = np.asarray(img.convert("RGBA"), dtype=np.uint8)
-            uv = np.asarray(visual.uv, np.float32)
+            uv = np.array(visual.uv, np.float32)  # a copy: a scene's arrays are made read-only
         alpha_mode = (getattr(mat, "alphaMode", None) or "OPAQUE").upper()
         cutoff = float(getattr(mat, "alphaCutoff", None) or 0.5)
         double_sided = bool(getattr(mat, "doubleSided", False))
@@ -936,7 +963,7 @@ def scene_from_trimesh(obj: Any) -> Scene:
             warnings.append(f"node {node!r} draws {type(geom).__name__} {geom_name!r}, not a "
                             "triangle mesh: left out")
             continue
-        m = np.asarray(matrix, np.float64)
+        m = np.array(matrix, np.float64)  # a copy: made read-only below, trimesh's is its own
         if m.shape != (4, 4) or not np.all(np.isfinite(m)):
             raise SceneError(f"node {node!r} has a non-finite transform")
         if geom_name not in index:
@@ -955,8 +982,9 @@ def scene_from_trimesh(obj: Any) -> Scene:
                             for z in (lo[2], hi[2])])
         world = corners @ m[:3, :3].T + m[:3, 3]
         cast, receive = flags[geom_name]
-        instances.append(Instance(p, m, cast, receive, str(node),
-                                  np.stack([world.min(axis=0), world.max(axis=0)])))
+        bounds = np.stack([world.min(axis=0), world.max(axis=0)])
+        _read_only(m, bounds)
+        instances.append(Instance(p, m, cast, receive, str(node), bounds))
     if not instances:
         detail = "; ".join(warnings) or "the scene has no geometry"
         raise SceneError(f"the scene has no triangles to render ({detail})")
@@ -1013,14 +1041,16 @@ def scene_from_meshes(meshes: list, names: list[str] | None = None) -> Scene:
         prim = _primitive_from_trimesh(mesh, name)
         primitives.append(prim)
         meta = mesh.metadata if isinstance(mesh.metadata, dict) else {}
+        matrix, bounds = np.eye(4), prim.local_bounds.astype(np.float64)
+        _read_only(matrix, bounds)
         instances.append(
             Instance(
                 primitive=i,
-                matrix=np.eye(4),
+                matrix=matrix,
                 cast_shadow=_flag(meta, "castShadow") is not False,
                 receive_shadow=_flag(meta, "receiveShadow") is not False,
                 name=name,
-                bounds=prim.local_bounds.astype(np.float64),
+                bounds=bounds,
             )
         )
     if not instances:

@@ -198,8 +198,9 @@ def thin_sheets() -> Scene:
         process=False,
     )
     scene = scene_from_meshes([_plane(8.0), roof, panel], ["ground", "roof", "panel"])
-    for prim in scene.primitives[1:]:
-        prim.material = Material(prim.material.base_color, double_sided=True)
+    scene.primitives[1:] = [
+        dataclasses.replace(p, material=Material(p.material.base_color, double_sided=True))
+        for p in scene.primitives[1:]]
     return scene
 
 
@@ -215,8 +216,9 @@ def degenerate_geometry() -> Scene:
     lone = trimesh.Trimesh(vertices=[[1.2, 0.8, 0.5], [2.2, 0.8, 0.5], [1.7, 0.8, -0.5]],
                            faces=[[0, 1, 2]], process=False)
     scene = scene_from_meshes([_plane(6.0), messy, lone], ["ground", "messy", "lone"])
-    scene.primitives[2].material = Material(scene.primitives[2].material.base_color,
-                                            double_sided=True)
+    prim = scene.primitives[2]
+    scene.primitives[2] = dataclasses.replace(
+        prim, material=Material(prim.material.base_color, double_sided=True))
     return scene
 
 
@@ -366,7 +368,7 @@ def band_metrics(rendered: np.ndarray, reference: object, bands: Sequence[float]
 def ground_only_receives() -> Scene:
     """The caster-on-ground scene with ``castShadow = false`` on the ground (three.js extras)."""
     scene = caster_on_ground()
-    scene.instances[0].cast_shadow = False
+    scene.instances[0] = dataclasses.replace(scene.instances[0], cast_shadow=False)
     return scene
 
 

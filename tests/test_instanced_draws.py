@@ -39,11 +39,11 @@ def field(n: int, seed: int = 11) -> Scene:
     ground = T.caster_on_ground().primitives[0]
     prims = [ground, _box_primitive("a"), _box_primitive("b")]
     side = math.ceil(math.sqrt(n))
-    instances = [Instance(0, np.eye(4), cast_shadow=False, name="ground",
-                          bounds=prims[0].local_bounds.astype(np.float64))]
     scale = side * PITCH / 6.0  # the test ground plane is 6 wide
-    instances[0].matrix = np.diag([scale, 1.0, scale, 1.0])
-    instances[0].bounds = world_bounds(instances[0].bounds, instances[0].matrix)
+    ground_matrix = np.diag([scale, 1.0, scale, 1.0])
+    instances = [Instance(0, ground_matrix, cast_shadow=False, name="ground",
+                          bounds=world_bounds(prims[0].local_bounds.astype(np.float64),
+                                              ground_matrix))]
     for k in range(n):
         yaw = rng.uniform(0, 2 * math.pi)
         c, s = math.cos(yaw), math.sin(yaw)

@@ -9,6 +9,8 @@ light shut in a closed box, which must keep the ground outside it dark.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
@@ -118,7 +120,7 @@ def test_an_empty_primitive_is_open():
 def _scene(*casters: tuple[Primitive, np.ndarray]) -> Scene:
     """A ground plane (a receiver that casts nothing) and the given (primitive, matrix) pairs."""
     ground = scene_from_meshes([T._plane(9.0)], ["ground"])
-    ground.instances[0].cast_shadow = False
+    ground.instances[0] = dataclasses.replace(ground.instances[0], cast_shadow=False)
     prims, insts = list(ground.primitives), list(ground.instances)
     for prim, m in casters:
         prims.append(prim)
@@ -166,7 +168,7 @@ def test_without_optimize_every_face_is_drawn():
 def test_a_texture_cut_out_draws_both_sides():
     texture = np.full((4, 4, 4), 255, np.uint8)
     box = _box(texture=texture, alpha_mode="MASK")
-    box.uv = np.zeros((len(box.positions), 2), np.float32)
+    box = dataclasses.replace(box, uv=np.zeros((len(box.positions), 2), np.float32))
     lp = _plan(_scene((box, _lift(1.0))), SUN).lights[0]
     assert lp.one_sided.size == 0
 

@@ -173,8 +173,8 @@ def test_light_with_cast_shadows_false_has_no_pass():
 
 def test_scene_without_casters_has_no_pass():
     scene = T.caster_on_ground()
-    for inst in scene.instances:
-        inst.cast_shadow = False
+    scene.instances[:] = [dataclasses.replace(inst, cast_shadow=False)
+                          for inst in scene.instances]
     p = plan(scene, lights=[SUN, SPOT_40, POINT])
     assert [lp.reason for lp in p.lights] == ["no_caster"] * 3
     assert p.map_lights == [] and p.to_dict()["light_passes"] == 0

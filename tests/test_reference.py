@@ -6,6 +6,7 @@ follows from a ray-plane intersection and a ray-box slab test.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 import sys
@@ -284,9 +285,8 @@ def test_scale_and_translation_invariance(scale):
         m = np.eye(4)
         m[:3, :3] *= s
         m[:3, 3] = t
-        for inst in scene.instances:
-            inst.matrix = m
-            inst.bounds = inst.bounds * s + t
+        scene.instances[:] = [dataclasses.replace(inst, matrix=m, bounds=inst.bounds * s + t)
+                              for inst in scene.instances]
         pose = look_at(EYE * s + t, t)
         cam = Camera(pose, math.radians(50), W, H, 0.1 * s, 100 * s)
         lights = [directional([-0.4, -1, -0.3]), point(np.array([1.2, 5.0, 0.7]) * s + t)]

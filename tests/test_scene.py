@@ -71,6 +71,29 @@ def test_files_that_are_no_regular_files_are_refused_before_reading(models, tmp_
     assert load_scene(duck, limits=Limits(max_request_bytes=10 * size)).triangle_count > 0
 
 
+def test_a_scenes_content_cannot_change_in_place(models):
+    """A renderer keeps what it read of a scene (its upload, instance arrays and plans): an
+    array changed in place drew the old content, unsaid. The arrays of a loaded or built scene
+    are read-only and its primitives and materials frozen, so such a change raises instead."""
+    import dataclasses
+
+    import trimesh
+
+    from shadowmap.renderer.scene import scene_from_meshes, scene_from_trimesh
+
+    box = trimesh.creation.box()
+    for scene in (load_scene(models / "Duck.glb"), load_scene(models / "Duck.glb").with_ground(),
+                  scene_from_trimesh(trimesh.Scene([box])), scene_from_meshes([box])):
+        prim, inst = scene.primitives[0], scene.instances[-1]
+        for array in (prim.positions, prim.normals, prim.indices, prim.material.base_color,
+                      inst.matrix, inst.bounds):
+            with pytest.raises(ValueError, match="read-only"):
+                array[0] = 1
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            prim.positions = prim.positions * 2  # type: ignore[misc]
+    assert box.vertices.flags.writeable  # trimesh's own arrays are left as they were
+
+
 def test_node_transforms_are_applied(models):
     # Duck's mesh is in centimetres under a node scaled by 0.01.
     duck = load_scene(models / "Duck.glb")

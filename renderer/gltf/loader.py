@@ -10,6 +10,7 @@ once per distinct (skin, morph weights) use, and instances built per mesh in vec
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -238,9 +239,12 @@ class _Loader:
         numbered = numbered[order]
         for k in np.flatnonzero(numbered).tolist():
             names[k] = f"{names[k]}#{int(sub[k])}"
-        # Copies: the Instance objects' matrices and bounds are views of these arrays, and an
-        # instance changed in place must not change the scene's arrays under the plan's caches.
-        self.arrays = {"primitive": prim, "matrices": matrices.copy(), "bounds": bounds.copy(),
+        # Read-only, so that the Instance objects' matrices and bounds, views of their rows, are
+        # born read-only (a change in place would go unseen by a renderer's caches) and the
+        # scene's arrays can be these same ones.
+        matrices.setflags(write=False)
+        bounds.setflags(write=False)
+        self.arrays = {"primitive": prim, "matrices": matrices, "bounds": bounds,
                        "receive": receive[node]}
         return list(map(Instance, prim.tolist(), matrices, cast[node].tolist(),
                         receive[node].tolist(), names, bounds))
@@ -317,7 +321,7 @@ class _Loader:
                 out.append(None)
                 continue
             built, centre = made
-            built.name = (name or f"mesh_{m}") + (f"_{p}" if p else "")
+            built = dataclasses.replace(built, name=(name or f"mesh_{m}") + (f"_{p}" if p else ""))
             if centre is not None:
                 self._centres[len(self.primitives)] = centre
             out.append(len(self.primitives))
