@@ -20,6 +20,7 @@ Each raises :class:`~shadowmap.renderer.errors.LimitError` naming the exceeded s
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING
@@ -117,11 +118,17 @@ class Limits:
     max_request_bytes: int = 1536 * MIB
 
     def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            # Whole numbers only: a NaN compares false with everything, so it would be no limit
+            # at all, and a string failed with a TypeError from the comparison below.
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                raise ValueError(f"{f.name} must be a whole number, not {value!r}")
+            object.__setattr__(self, f.name, int(value))  # a numpy integer, say
+            if value < 1:
+                raise ValueError(f"{f.name} must be at least 1")
         if not 1 <= self.max_lights <= MAX_LIGHTS:
             raise ValueError(f"max_lights must be from 1 to {MAX_LIGHTS}")
-        for f in fields(self):
-            if getattr(self, f.name) < 1:
-                raise ValueError(f"{f.name} must be at least 1")
 
 
 # --------------------------------------------------------------------------------------------

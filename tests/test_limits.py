@@ -12,6 +12,7 @@ import base64
 import json
 import math
 import pickle
+import re
 import struct
 import time
 import zlib
@@ -636,3 +637,20 @@ def test_the_automatic_camera_of_a_scene_near_float32s_range_is_the_scenes_fault
     huge = T.transformed(T.caster_on_ground(), 2e17)
     with pytest.raises(SceneError, match="the camera [(]the automatic one"):
         renderer.render(huge, {"width": 64, "height": 48})
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"max_request_bytes": float("nan")}, "max_request_bytes must be a whole number, not nan"),
+    ({"max_pixels": "4096"}, "max_pixels must be a whole number, not '4096'"),
+    ({"max_triangles": 2.5e6}, "max_triangles must be a whole number, not 2500000.0"),
+    ({"max_nodes": True}, "max_nodes must be a whole number, not True"),
+    ({"max_map_size": 0}, "max_map_size must be at least 1"),
+    ({"max_lights": 9}, "max_lights must be from 1 to 8"),
+])
+def test_limits_are_whole_numbers_from_1(fields, message):
+    """A NaN compared false with every count, so ``max_request_bytes=nan`` was no limit at all,
+    unsaid; a string ended in a TypeError. Each is a ValueError naming the field."""
+    with pytest.raises(ValueError, match=re.escape(message)):
+        Limits(**fields)
+    assert Limits(max_pixels=np.int64(100)).max_pixels == 100  # numpy integers are taken
+    assert type(Limits(max_pixels=np.int64(100)).max_pixels) is int
