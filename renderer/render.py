@@ -331,7 +331,7 @@ class Renderer:
             :attr:`limits`.
         """
         if is_trimesh(source):
-            scene = scene_from_trimesh(source)
+            scene = scene_from_trimesh(source, self.limits)
             check_scene(scene, self.limits)
             return scene
         data, file_type, resources = read_source(source, file_type, resources,

@@ -919,6 +919,22 @@ def load_scene(
     return scene
 
 
+def _check_trimesh_counts(obj: Any, limits: Limits) -> None:
+    """:func:`scene_from_trimesh`'s counts, read from the scene graph alone."""
+    nodes = obj.graph.nodes_geometry
+    if len(nodes) > limits.max_instances:
+        raise LimitError("max_instances", f"the trimesh scene has {len(nodes)} nodes drawing "
+                         f"geometry, over the limit of {limits.max_instances}")
+    if len(obj.geometry) > limits.max_primitives:
+        raise LimitError("max_primitives", f"the trimesh scene has {len(obj.geometry)} "
+                         f"geometries, over the limit of {limits.max_primitives}")
+    faces = {name: len(getattr(g, "faces", ())) for name, g in obj.geometry.items()}
+    triangles = sum(faces.get(str(obj.graph[node][1]), 0) for node in nodes)
+    if triangles > limits.max_triangles:
+        raise LimitError("max_triangles", f"the trimesh scene draws {triangles} triangles, over "
+                         f"the limit of {limits.max_triangles}")
+
+
 def is_trimesh(obj: object) -> bool:
     """Whether ``obj`` is a ``trimesh.Trimesh`` or ``trimesh.Scene`` (checked without importing
     trimesh where the caller has not)."""
@@ -928,7 +944,7 @@ def is_trimesh(obj: object) -> bool:
     return tm is not None and isinstance(obj, (tm.Trimesh, tm.Scene))
 
 
-def scene_from_trimesh(obj: Any) -> Scene:
+def scene_from_trimesh(obj: Any, limits: Limits | None = None) -> Scene:
     """A :class:`Scene` from a ``trimesh.Trimesh`` or ``trimesh.Scene``, what pyrender users hold.
 
     A ``Trimesh`` is one instance, its vertices taken as world space. A ``trimesh.Scene`` is read
@@ -938,11 +954,18 @@ def scene_from_trimesh(obj: Any) -> Scene:
     from ``metadata["extras"]``, where trimesh keeps a glTF file's extras. Geometry that is not a
     triangle mesh (points, paths) is left out with a warning in :attr:`Scene.warnings`.
 
+    With ``limits``, the counts are checked from the graph before any mesh is converted (the
+    conversion is a loop over the meshes): nodes that draw a geometry against ``max_instances``,
+    geometries against ``max_primitives``, triangles over every node against
+    ``max_triangles``.
+
     Raises
     ------
     SceneError
         Nothing to draw; a mesh without triangles, with indices outside its vertices, or with
         non-finite vertices or transforms.
+    LimitError
+        Over one of ``limits``' counts.
     """
     import trimesh
 
@@ -950,6 +973,8 @@ def scene_from_trimesh(obj: Any) -> Scene:
         obj = trimesh.Scene(obj)
     if not isinstance(obj, trimesh.Scene):
         raise SceneError(f"not a trimesh mesh or scene: {type(obj).__name__}")
+    if limits is not None:
+        _check_trimesh_counts(obj, limits)
     primitives: list[Primitive] = []
     index: dict[str, int] = {}
     instances: list[Instance] = []

@@ -107,3 +107,31 @@ def test_renders_a_trimesh_scene_against_the_reference(renderer):
     assert direct.plan["lights"][0]["casters"] == 3  # the ground casts nothing
     one = renderer.render(trimesh.creation.icosphere(), {"width": 64, "height": 48})
     assert one.color.shape == (48, 64, 3)
+
+
+@pytest.mark.parametrize("limit, value, text", [
+    ("max_primitives", 5, "has 6 geometries, over the limit of 5"),
+    ("max_instances", 8, "has 9 nodes drawing geometry, over the limit of 8"),
+    ("max_triangles", 100, "draws 108 triangles, over the limit of 100"),
+])
+def test_a_trimesh_scene_over_a_count_is_refused_before_conversion(renderer, limit, value, text,
+                                                                  monkeypatch):
+    """The counts come from the graph: no mesh is converted (that loop is the expensive part;
+    the service's limits used to be checked only after it, and only for triangles)."""
+    from shadowmap.renderer import LimitError, Limits
+    from shadowmap.renderer import scene as scene_module
+
+    scene = trimesh.Scene()
+    box = trimesh.creation.box()  # 12 triangles
+    for i in range(6):
+        scene.add_geometry(box.copy(), geom_name=f"g{i}", node_name=f"n{i}")
+    for i in range(3):  # three more nodes drawing g0: 9 nodes, 108 triangles
+        scene.graph.update(frame_to=f"again{i}", frame_from=scene.graph.base_frame,
+                           geometry="g0")
+    assert len(scene.geometry) == 6 and len(scene.graph.nodes_geometry) == 9
+    converted = []
+    monkeypatch.setattr(scene_module, "_primitive_from_trimesh",
+                        lambda *a: converted.append(a) or pytest.fail("a mesh was converted"))
+    with pytest.raises(LimitError, match=text) as info:
+        scene_from_trimesh(scene, Limits(**{limit: value}))
+    assert info.value.limit == limit and not converted
