@@ -255,6 +255,29 @@ def test_an_unknown_platform_is_a_render_error_before_any_context(platform, mess
         Renderer(platform=platform)
 
 
+@pytest.mark.parametrize("kind", ["point", "spot"])
+def test_a_depth_range_rounded_away_is_a_warning_not_a_crash(renderer, kind):
+    """A box on a ground 1.2e-6 units wide lit from 1e10 units away: float64's steps there
+    (1.9e-6) put its nearest caster and deepest receiver at one depth, and the map's
+    projection divided by their difference (ZeroDivisionError, found by the scaling fuzz).
+    The light gets no pass and says why."""
+    import trimesh
+
+    from shadowmap.renderer.scene import scene_from_meshes
+
+    s = 2e-7
+    ground = trimesh.creation.box(extents=(6 * s, 0.01 * s, 6 * s))
+    box = trimesh.creation.box(extents=(s, s, s))
+    box.apply_translation((0, s, 0))
+    light = {"type": kind, "position": [8e9, 5e9, -3e9]}
+    if kind == "spot":
+        light["target"] = [0.0, 0.0, 0.0]
+    result = renderer.render(scene_from_meshes([ground, box]),
+                             {"width": 64, "height": 48, "lights": [light]})
+    assert result.plan["lights"][0]["skipped_pass"] == "below_precision"
+    assert any("round to one number" in w for w in result.warnings)
+
+
 def test_context_refuses_other_threads(renderer, demo):
     errors = []
 

@@ -433,6 +433,8 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     a_lo, a_hi = a_lo - pad, a_hi + pad
     far0 = min(reach.far, _pyramid_far(ctx, reach, s.receivers, a_lo, a_hi, near))
     near, far = _map_depth_range(float(reach.depth_min[fit].min()), far0)
+    if not far > near:
+        return Skip("below_precision")  # see _map_depth_range
     proj = frustum(a_lo[0] * near, a_hi[0] * near, a_lo[1] * near, a_hi[1] * near, near, far)
     # What the most demanding seen receiver point wants: one texel spans extent / size * its
     # light depth and a pixel pixel_per_distance * its camera distance, and receivers over
@@ -570,6 +572,11 @@ def _map_depth_range(caster_near: float, receiver_far: float) -> tuple[float, fl
     scene 6 units deep moved its near plane 5e7 units in front of the casters at 0.999 of their
     distance, and the map's depth range, 5e7 units, left float32 a step of 3 units for a scene 6
     deep (IoU 0 against the reference).
+
+    A range that comes out empty (far not beyond near) is float64's rounding: a box on a ground
+    1.2e-6 units wide, lit from 1e10 units away, where float64's steps are 1.9e-6, has its
+    nearest caster and deepest receiver at one depth. The fits then give the light no pass
+    (``"below_precision"``, with a warning); dividing by the range raised ZeroDivisionError.
     """
     margin = 1e-3 * max(receiver_far - caster_near, 0.0)
     far = receiver_far + margin
@@ -585,10 +592,12 @@ def _near_clipped(depth_min: np.ndarray, near: float) -> int:
     return int(np.count_nonzero((depth_min > 0.0) & (depth_min < near)))
 
 
-def fit_cube(ctx: PlanContext, s: Subject, reach: CubeReach, fit: np.ndarray) -> Fit:
+def fit_cube(ctx: PlanContext, s: Subject, reach: CubeReach, fit: np.ndarray) -> Fit | Skip:
     """Six 90-degree faces from the nearest caster to the farthest receiver (Chebyshev depth,
     the depth along the face axis)."""
     near, far = _map_depth_range(float(reach.depth_min[fit].min()), reach.far)
+    if not far > near:
+        return Skip("below_precision")  # see _map_depth_range
     d_light = float(np.median(reach.cheb[s.receivers].mean(axis=1).clip(min=near)))
     # A face spans two units at unit depth.
     size, needed = ctx.map_size_and_need(2 * d_light, s.receivers, cube=True,

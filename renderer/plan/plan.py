@@ -70,7 +70,8 @@ class LightShadow:
         Why there is no pass: "cast_shadows_false", "no_caster", "no_visible_receiver",
         "no_caster_in_frustum", "no_shadow_in_view" (no caster's shadow volume reaches a
         visible pixel of a receiver) or "below_precision" (the casters are narrower than
-        float32 resolves at their distance from the origin; with a warning).
+        float32 resolves at their distance from the origin, or a spot or point light's depth
+        range rounds away; with a warning).
     view : ndarray, shape (4, 4)
         World (origin-relative) to light view (2D maps).
     proj : ndarray, shape (4, 4)
@@ -460,11 +461,17 @@ def _resolution_warning(lp: LightShadow, params: RenderParams) -> str:
 
 
 def _precision_warning(lp: LightShadow) -> str:
-    """A directional light whose casters are too narrow for their distance from the scene's
-    centre to be fitted a map (:data:`~.fit.MIN_RELATIVE_EXTENT`)."""
-    return (f"light {lp.index}: no shadow: what casts it is narrower than the GPU's float32 "
-            "positions resolve that far from the scene's centre (under a millionth of its "
-            "distance), so its map would hold rounding noise; the light shines unshadowed")
+    """A light whose map would hold rounding noise: a directional light's casters too narrow
+    for their distance from the scene's centre (:data:`~.fit.MIN_RELATIVE_EXTENT`), or a spot
+    or point light's depth range from its nearest caster to its deepest receiver rounded away
+    (:func:`~.fit._map_depth_range`)."""
+    if lp.light.type == "directional":
+        return (f"light {lp.index}: no shadow: what casts it is narrower than the GPU's float32 "
+                "positions resolve that far from the scene's centre (under a millionth of its "
+                "distance), so its map would hold rounding noise; the light shines unshadowed")
+    return (f"light {lp.index}: no shadow: the depths from the light to its nearest caster and "
+            "to its deepest receiver round to one number (the scene is too small for how far "
+            "out it lies), so its map would hold rounding noise; the light shines unshadowed")
 
 
 def _depth_step_warning(lp: LightShadow, params: RenderParams) -> str:
