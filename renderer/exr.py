@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ExrUnavailable, FileFormatError, LimitError
+from .errors import ExrUnavailable, FileFormatError, LimitError, SceneError
 from .limits import Limits
 
 MEDIA_EXR = "image/x-exr"
@@ -130,12 +130,16 @@ def read_exr(source: str | os.PathLike[str] | bytes | bytearray | memoryview,
     if isinstance(source, (bytes, bytearray, memoryview)):
         data, name = bytes(source), "the EXR data"
     elif isinstance(source, (str, os.PathLike)):
+        from .scene import read_regular_file
+
         name = os.fsdecode(source).replace("\x00", "\\x00")
         try:
-            data = Path(source).read_bytes()
+            data = read_regular_file(Path(source), name)  # not a FIFO or /dev/zero
         except (OSError, ValueError) as exc:  # ValueError: a NUL in the path
             raise FileFormatError(f"cannot read {name}: "
                                   f"{getattr(exc, 'strerror', None) or exc}") from None
+        except SceneError as exc:
+            raise FileFormatError(str(exc)) from None
     else:
         raise FileFormatError(f"read_exr reads a path or bytes, not {type(source).__name__}")
     limit = Limits().max_pixels if max_pixels is None else int(max_pixels)

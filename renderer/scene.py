@@ -583,9 +583,9 @@ def read_regular_file(path: str | Path, what: str, max_bytes: int | None = None)
     Raises
     ------
     OSError
-        It cannot be opened or read (the caller says what it was for).
+        It cannot be opened or read, or is a folder (the caller says what it was for).
     SceneError
-        It is a folder, a FIFO, a device or a socket.
+        It is a FIFO, a device or a socket.
     LimitError
         It holds more than ``max_bytes``.
     """
@@ -593,8 +593,9 @@ def read_regular_file(path: str | Path, what: str, max_bytes: int | None = None)
     with open(fd, "rb", buffering=0, closefd=True) as f:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            kind = ("a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(
-                st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "a device")
+            # (A folder never gets here: opening it for reading is IsADirectoryError.)
+            kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a socket"
+                    if stat.S_ISSOCK(st.st_mode) else "a device")
             raise SceneError(f"{what} is {kind}, not a regular file")
         if max_bytes is not None and st.st_size > max_bytes:
             raise LimitError("max_request_bytes", f"{what} holds {st.st_size} bytes, over the "

@@ -78,7 +78,7 @@ def test_read_exr_refuses_a_data_window_over_max_pixels_before_reading_pixels():
 
 @pytest.mark.parametrize("source", [
     b"", b"garbage", "truncated", "cut short", "/nonexistent/depth.exr", "folder",
-    "nul\x00.exr", 3, None,
+    "nul\x00.exr", 3, None, "/dev/zero",
 ])
 def test_read_exr_of_anything_else_is_a_file_format_error(source, tmp_path):
     good = exr_bytes({"Z": np.ones((3, 4), np.float32)})
