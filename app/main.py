@@ -6,9 +6,10 @@ Run it with ``shadowmap serve`` (which calls :func:`run`), or directly::
 
 Settings come from ``SHADOWMAP_*`` environment variables, see
 :class:`shadowmap.app.settings.Settings`. Those of the HTTP server itself (``keep_alive_timeout``,
-``limit_concurrency``, ``shutdown_timeout``) are applied by :func:`run`; with the ``uvicorn``
-command give them as its own options (``--timeout-keep-alive``, ``--limit-concurrency``,
-``--timeout-graceful-shutdown``).
+``limit_concurrency``, ``shutdown_timeout``, ``send_timeout``) are applied by :func:`run`; with
+the ``uvicorn`` command give the first three as its own options (``--timeout-keep-alive``,
+``--limit-concurrency``, ``--timeout-graceful-shutdown``); it has no deadline on the request head
+or on the client's reading of the response.
 The GL platform is chosen by ``PYOPENGL_PLATFORM`` (``egl`` or ``osmesa``; probed when unset).
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import copy
 import ctypes
+import functools
 import logging
 import multiprocessing
 import os
@@ -332,26 +334,47 @@ def check_server(host: str, port: int, workers: int) -> None:
 
 
 def _http_protocol() -> type[asyncio.Protocol] | str:
-    """uvicorn's httptools protocol with a deadline on the request head, when it is installed."""
-    return HeadDeadlineProtocol if HeadDeadlineProtocol is not None else "auto"
+    """uvicorn's httptools protocol with deadlines on the request head and on the client's
+    reading of the response, when it is installed."""
+    return DeadlineProtocol if DeadlineProtocol is not None else "auto"
+
+
+@functools.cache
+def _send_timeout() -> float:
+    """``send_timeout`` of this process's settings: read once, as :func:`run` wrote them to the
+    environment (every server process reads its own)."""
+    return Settings().send_timeout
 
 
 try:
     from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
-except ImportError:  # no httptools (or no uvicorn): the server's own protocol, without it
-    HeadDeadlineProtocol = None
+except ImportError:  # no httptools (or no uvicorn): the server's own protocol, without them
+    DeadlineProtocol = None
 else:
 
-    class HeadDeadlineProtocol(HttpToolsProtocol):  # type: ignore[no-redef]
-        """Closes a connection that has not sent a whole request head ``timeout_keep_alive``
-        seconds after it opened or after its last response.
+    class DeadlineProtocol(HttpToolsProtocol):  # type: ignore[no-redef]
+        """uvicorn's httptools protocol with two deadlines on the client.
 
-        uvicorn's own keep-alive timer starts only after a first response and stops at the
-        first byte, so a connection that never sends anything, or sends its headers a byte at a
-        time, would hold one of the ``limit_concurrency`` places for ever.
+        The request head: a connection that has not sent a whole head ``timeout_keep_alive``
+        seconds after it opened or after its last response is closed. uvicorn's own keep-alive
+        timer starts only after a first response and stops at the first byte, so a connection
+        that never sends anything, or sends its headers a byte at a time, would hold one of the
+        ``limit_concurrency`` places for ever.
+
+        The response: the time the server waits on the client to read (its send buffer full:
+        between the transport's ``pause_writing`` and ``resume_writing``) is summed from each
+        request head on (a head sent while an earlier response still waits does not start the
+        sum again); past ``send_timeout`` seconds the connection is dropped. A response is
+        handed to the transport whole, and closing a connection waits until the buffer is sent,
+        so a client that stops reading a response larger than the kernel's socket buffers would
+        otherwise hold its place, and the response's bytes, for ever. Summed, not per pause: a
+        client that reads a few kB now and then resumes the transport each time.
         """
 
         _head_timer: asyncio.TimerHandle | None = None
+        _send_timer: asyncio.TimerHandle | None = None
+        _paused_at: float | None = None  # loop time of the pause now in force
+        _paused_total = 0.0  # seconds paused since the last request head, before _paused_at
 
         def _arm_head_timer(self) -> None:
             self._cancel_head_timer()
@@ -367,12 +390,26 @@ else:
             if not self.transport.is_closing():
                 self.transport.close()
 
+        def _cancel_send_timer(self) -> None:
+            if self._send_timer is not None:
+                self._send_timer.cancel()
+                self._send_timer = None
+
+        def _send_late(self) -> None:
+            # abort(), not close(): close() would wait for the buffer to be read.
+            self._send_timer = None
+            self.transport.abort()
+
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
             super().connection_made(transport)
             self._arm_head_timer()
 
         def on_headers_complete(self) -> None:
             self._cancel_head_timer()
+            # A new request gets the whole allowance, unless an earlier response still waits on
+            # the client (a pipelined head): that wait goes on counting.
+            if self._paused_at is None:
+                self._paused_total = 0.0
             super().on_headers_complete()
 
         def on_response_complete(self) -> None:
@@ -383,8 +420,23 @@ else:
             if not pipelined and not self.transport.is_closing():
                 self._arm_head_timer()
 
+        def pause_writing(self) -> None:
+            super().pause_writing()
+            if self._paused_at is None:
+                self._paused_at = self.loop.time()
+                left = _send_timeout() - self._paused_total
+                self._send_timer = self.loop.call_later(max(left, 0.0), self._send_late)
+
+        def resume_writing(self) -> None:
+            super().resume_writing()
+            if self._paused_at is not None:
+                self._paused_total += self.loop.time() - self._paused_at
+                self._paused_at = None
+            self._cancel_send_timer()
+
         def connection_lost(self, exc: Exception | None) -> None:
             self._cancel_head_timer()
+            self._cancel_send_timer()
             super().connection_lost(exc)
 
 

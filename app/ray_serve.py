@@ -5,8 +5,8 @@ factory ``shadowmap serve`` uses) and runs its lifespan, so it has its own rende
 (its own GL context), queue, limits and error handling; Ray Serve's HTTP proxy spreads requests
 over the replicas. Routes, limits (``SHADOWMAP_*`` settings, passed to every replica) and error
 bodies are those of the plain service. The proxy, not uvicorn, holds the connections, so
-``keep_alive_timeout``, ``limit_concurrency`` and the request-head deadline of ``shadowmap serve``
-do not apply; Ray Serve's own HTTP options do.
+``keep_alive_timeout``, ``limit_concurrency``, ``send_timeout`` and the request-head deadline of
+``shadowmap serve`` do not apply; Ray Serve's own HTTP options do.
 
 On a cluster with GPUs each replica asks for one GPU and renders on that EGL device.
 ``ray`` is imported when this runs (the ``ray`` extra).

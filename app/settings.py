@@ -87,6 +87,11 @@ class Settings(BaseSettings):
         Celery's ``max_memory_per_child``; 0: no cap).
     upload_timeout : float
         Seconds a client may take to send the request body; 408 and the connection closed after.
+    send_timeout : float
+        Seconds the service may wait on a client to read its response (its send buffer full),
+        summed over the response; the connection is dropped after (applied by ``shadowmap
+        serve``). A client that stops reading a large response would otherwise hold its
+        connection, one of the ``limit_concurrency`` places, and the response's bytes for ever.
     keep_alive_timeout : int
         Seconds an idle connection stays open (uvicorn ``timeout_keep_alive``; applied by
         ``shadowmap serve``, which also closes a new connection that sends nothing in this time).
@@ -130,6 +135,7 @@ class Settings(BaseSettings):
     max_worker_memory_bytes: int = Field(default=1536 * 2**20, ge=0)
     upload_timeout: float = Field(default=30.0, gt=0.0, le=MAX_SECONDS,
                                   allow_inf_nan=False)
+    send_timeout: float = Field(default=30.0, gt=0.0, le=MAX_SECONDS, allow_inf_nan=False)
     keep_alive_timeout: int = Field(default=5, ge=1, le=MAX_SECONDS)
     limit_concurrency: int = Field(default=64, ge=1)
     shutdown_timeout: float = Field(default=10.0, ge=0.0, le=MAX_SECONDS,

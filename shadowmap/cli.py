@@ -443,7 +443,7 @@ def _serve_ray(args: argparse.Namespace, overrides: dict[str, Any]) -> int:
     if args.replicas < 1:
         return _fail("--replicas must be at least 1")
     # Connection handling is Ray Serve's proxy's: these uvicorn options have no effect there.
-    for name in ("keep_alive_timeout", "limit_concurrency"):
+    for name in ("keep_alive_timeout", "limit_concurrency", "send_timeout"):
         overrides.pop(name, None)
     address = None if args.ray == "auto" else args.ray
     try:
@@ -558,6 +558,8 @@ scene file), so a killed batch resumes where it stopped. Exit status 1 when a jo
 #: same as ``SHADOWMAP_UPLOAD_TIMEOUT``), with their type and help.
 SERVE_SETTINGS: dict[str, tuple[type, str]] = {
     "upload_timeout": (float, "seconds a client may take to send the request body (408 after)"),
+    "send_timeout": (float, "seconds a client may keep a response waiting by not reading it "
+                     "(the connection is dropped after)"),
     "keep_alive_timeout": (int, "seconds an idle connection stays open, and a new one may take "
                            "to send its request head"),
     "limit_concurrency": (int, "most connections at once (more get 503)"),

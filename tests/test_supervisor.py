@@ -379,6 +379,47 @@ def test_idle_and_half_open_connections_are_closed(limits_server):
         assert data.startswith(b"HTTP/1.1 200") and closed and took < 3.0, (data[:100], took)
 
 
+#: A response larger than the kernel's socket buffers can hold (4 MiB of send buffer at most by
+#: default, /proc/sys/net/ipv4/tcp_wmem): about 7 MB of JSON (colour, depth and visibility, the
+#: last two also as float32 OpenEXR), rendered in about 2 s on llvmpipe.
+BIG_RESPONSE = {"width": 4096, "height": 4096, "outputs": ["color", "depth", "visibility"],
+                "float_format": "exr"}
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_a_client_that_stops_reading_its_response_is_dropped_after_send_timeout():
+    """A client that sends a request and never reads the answer would hold its connection, one
+    of the limit_concurrency places (2 here: itself and one more), and the response's bytes for
+    ever; send_timeout (2 s) drops it. A client that reads the same response gets all of it."""
+    with serving({"SHADOWMAP_SEND_TIMEOUT": "2", "SHADOWMAP_LIMIT_CONCURRENCY": "2"}) as (s,):
+        params = json.dumps(BIG_RESPONSE).encode()
+        body = (b'--b\r\nContent-Disposition: form-data; name="params"\r\n\r\n' + params
+                + b"\r\n--b--\r\n")
+        request = (b"POST /render HTTP/1.1\r\nHost: x\r\nAccept: application/json\r\n"
+                   b"Content-Type: multipart/form-data; boundary=b\r\n"
+                   b"Content-Length: %d\r\n\r\n" % len(body)) + body
+        with httpx.Client(base_url=s.url, timeout=60) as client:
+            whole = client.post("/render", content=request.partition(b"\r\n\r\n")[2],
+                                headers={"Accept": "application/json",
+                                         "Content-Type": "multipart/form-data; boundary=b"})
+            assert whole.status_code == 200, whole.text[:300]
+            size = len(whole.content)
+            assert size > 6_000_000 and set(whole.json()["outputs"]) >= {"color", "depth"}
+        with socket.socket() as stalled:
+            # A small receive window, set before the connection opens, as a slow reader's.
+            stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            stalled.connect(("127.0.0.1", s.port))
+            stalled.sendall(request)
+
+            def served() -> bool:  # 503 while the stalled connection holds its place
+                return httpx.get(s.url + "/healthz", timeout=5).status_code == 200
+
+            wait_for(served, 30, "a free connection place")
+            # What the kernel had taken in is still read, then the end: no whole response.
+            data, _, closed = read_response(stalled, 10)
+        assert closed and data.startswith(b"HTTP/1.1 200"), data[:100]
+        assert len(data) < size, (len(data), size)
 @pytest.mark.gl
 @pytest.mark.slow
 def test_shutdown_is_bounded_while_a_render_runs():
