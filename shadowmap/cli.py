@@ -11,8 +11,10 @@ the command still exits with status 0.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
+import os
 import re
 import sys
 from pathlib import Path
@@ -56,7 +58,8 @@ ambient; background; specular; shininess; shadows {{encoding rgba8|rgb8|rg8|r8|d
 normal_offset; polygon_offset; quantisation_steps}}}}; outputs [color, light_depth, visibility,
 depth]; alpha; ground; reference; optimize; float_format png16|exr.
 
--o FILE writes the colour image as PNG to FILE; without --out nothing else is written.
+-o FILE writes the colour image as PNG to FILE; without --out nothing else is written. -o -
+writes it to standard output (redirected or piped), and the summary line to standard error.
 Writes to OUT (--out; default ./out unless -o is given): color.png, light_depth_<i>.png and
 light_depth_<i>.npy per light, visibility.npy (H x W, or H x W x L for several lights),
 depth.npy, report.json (timings, GL renderer, the render plan, warnings, and with --reference
@@ -144,6 +147,14 @@ def _render(args: argparse.Namespace) -> int:
         orbit = _apply_flags(args, params)
     except ValueError as exc:
         return _fail(str(exc))
+    for flag, value in (("-o/--output", args.output), ("--out", args.out)):
+        if value is not None and not value.strip():
+            return _fail(f"{flag} is empty: give a path")
+    to_stdout = args.output == "-"
+    if to_stdout and sys.stdout.isatty():
+        # Before the render: a PNG's bytes would garble the terminal.
+        return _fail("-o - writes the PNG to standard output, which is a terminal here: "
+                     "redirect it (> image.png) or pipe it")
 
     def validate() -> RenderParams | str:
         try:
@@ -164,7 +175,7 @@ def _render(args: argparse.Namespace) -> int:
         # Before the render: the files are written after it.
         return _fail("float_format exr needs the OpenEXR package: pip install 'OpenEXR>=3.5'")
     # The folders too: a path that cannot be one fails now, not after the render.
-    folders = [out, Path(args.output).parent if args.output is not None else None]
+    folders = [out, Path(args.output).parent if args.output not in (None, "-") else None]
     for folder in (f for f in folders if f is not None):
         try:
             folder.mkdir(parents=True, exist_ok=True)
@@ -187,7 +198,22 @@ def _render(args: argparse.Namespace) -> int:
         return _fail(str(exc), 3)
     except ShadowMapError as exc:
         return _fail(str(exc))
-    if args.output is not None and result.color is not None:
+    if to_stdout and result.color is not None:
+        png = io.BytesIO()
+        Image.fromarray(result.color).save(png, format="PNG")
+        try:
+            # os.write until every byte is taken: a reader that leaves mid-write makes the
+            # write return short, and only the next one fails.
+            sys.stdout.flush()
+            data = memoryview(png.getbuffer())
+            while data:
+                data = data[os.write(sys.stdout.fileno(), data):]
+        except BrokenPipeError:  # the reader left (| head -c): nothing more to write to
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return _fail("standard output closed before the PNG was written", 1)
+        except OSError as exc:
+            return _fail(f"cannot write the PNG to standard output: {exc.strerror or exc}")
+    elif args.output is not None and result.color is not None:
         output = Path(args.output)
         try:
             Image.fromarray(result.color).save(output, format="PNG")
@@ -201,12 +227,16 @@ def _render(args: argparse.Namespace) -> int:
         except OSError as exc:
             return _fail(f"cannot write {exc.filename or out}: {exc.strerror or exc}")
     t = result.timings
-    written = ", ".join(str(p) for p in (args.output, out) if p is not None)
+    written = ", ".join("standard output" if p == "-" else str(p)
+                        for p in (args.output, out) if p is not None)
+    # With -o -, standard output holds the PNG: the summary goes to standard error.
+    report = sys.stderr if to_stdout else sys.stdout
     print(f"rendered {scene_path.name} in {t['total'] * 1000:.1f} ms on {result.info['renderer']} "
-          f"({result.info['platform']}) -> {written}")
+          f"({result.info['platform']}) -> {written}", file=report)
     if result.metrics:
         for i, m in enumerate(result.metrics):
-            print(f"light {i}: IoU {m['iou']:.4f}, misclassified {m['misclassified_pct']:.3f}%")
+            print(f"light {i}: IoU {m['iou']:.4f}, misclassified {m['misclassified_pct']:.3f}%",
+                  file=report)
     return 0
 
 
@@ -320,8 +350,11 @@ def _apply_flags(args: argparse.Namespace, params: dict[str, Any]) -> _Orbit | N
             params[key] = getattr(args, key)
     if args.reference:
         params["reference"] = True
-    if args.outputs:
-        params["outputs"] = args.outputs.split(",")
+    if args.outputs is not None:
+        params["outputs"] = [o.strip() for o in args.outputs.split(",") if o.strip()]
+        if not params["outputs"]:
+            raise ValueError("--outputs names no output: give one or more of "
+                             "color,light_depth,visibility,depth")
     if args.float_format is not None:
         params["float_format"] = args.float_format
     if args.ground is not None:
@@ -590,7 +623,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene")
     r.add_argument("--params", metavar="PARAMS.json", help="request as JSON (see below)")
     r.add_argument("-o", "--output", metavar="FILE",
-                   help="write the colour image to FILE as PNG")
+                   help="write the colour image to FILE as PNG ('-': to standard output)")
     r.add_argument("--size", metavar="WxH", help="image size in pixels, e.g. 800x600")
     r.add_argument("--width", type=int)
     r.add_argument("--height", type=int)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import re
@@ -209,6 +210,48 @@ def test_one_liner_writes_the_png_only(models, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["duck.png"]  # no ./out without --out
 
 
+@pytest.mark.gl
+def test_dash_output_writes_the_png_to_stdout_and_the_summary_to_stderr(models, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "shadowmap", "render", str(models / "Duck.glb"),
+                           "-o", "-", "--size", "64x48"], capture_output=True, cwd=tmp_path,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    image = Image.open(io.BytesIO(proc.stdout))
+    assert image.format == "PNG" and image.size == (64, 48)
+    assert b"-> standard output" in proc.stderr
+    assert list(tmp_path.iterdir()) == []  # no file named "-", no ./out
+
+
+@pytest.mark.gl
+def test_dash_output_to_a_reader_that_leaves_is_an_error(models, tmp_path):
+    """A reader gone mid-PNG (| head -c 10) is exit 1, not a silent success with half a file."""
+    reader = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.buffer.read(10)"],
+                              stdin=subprocess.PIPE)
+    proc = subprocess.run([sys.executable, "-m", "shadowmap", "render", str(models / "Duck.glb"),
+                           "-o", "-", "--size", "3000x3000"], stdout=reader.stdin,
+                          stderr=subprocess.PIPE, text=True, cwd=tmp_path, timeout=120)
+    reader.stdin.close()
+    reader.wait(30)
+    assert proc.returncode == 1, proc.stderr
+    assert "standard output closed" in proc.stderr
+
+
+def test_dash_output_refuses_a_terminal(models, tmp_path):
+    """Refused before the render: the PNG's bytes would garble the terminal."""
+    import pty
+
+    leader, follower = pty.openpty()
+    try:
+        proc = subprocess.run([sys.executable, "-m", "shadowmap", "render",
+                               str(models / "Duck.glb"), "-o", "-"], stdout=follower,
+                              stderr=subprocess.PIPE, text=True, cwd=tmp_path, timeout=120)
+    finally:
+        os.close(follower)
+        os.close(leader)
+    assert proc.returncode == 2
+    assert "standard output, which is a terminal" in proc.stderr
+
+
 def test_orbit_eye_follows_model_viewer():
     from shadowmap.cli import _orbit, orbit_eye
 
@@ -292,6 +335,10 @@ def test_params_from_a_fifo_as_a_shell_gives_them(models, tmp_path):
         (["--light-dir", "0,0,0"], "zero vector"),
         (["--light-dir", "1,nan,0"], "finite"),
         (["-o", "x.png", "--outputs", "depth"], "color"),
+        (["--outputs", ""], "names no output"),
+        (["--outputs", " , "], "names no output"),
+        (["-o", ""], "-o/--output is empty"),
+        (["--out", " "], "--out is empty"),
     ],
 )
 def test_bad_flag_values_exit_2_with_one_line(models, tmp_path, args, message):

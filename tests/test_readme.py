@@ -128,8 +128,17 @@ def workdir(tmp_path):
 
 
 def _outputs(code: str) -> list[str]:
-    """Files a block writes with ``-o FILE`` (curl, ``shadowmap render``)."""
-    return re.findall(r"(?:^|\s)-o\s+(\S+)", code)
+    """Files a block writes with ``-o FILE`` (curl, ``shadowmap render``), or with ``-o -`` and
+    the redirect of that line's standard output (``-o - > FILE``)."""
+    files = []
+    for line in code.splitlines():
+        for name in re.findall(r"(?:^|\s)-o\s+(\S+)", line):
+            if name == "-":
+                redirect = re.search(r"(?:^|\s)>\s*(\S+)", line)
+                assert redirect, f"{line!r}: -o - without a redirect to a file"
+                name = redirect[1]
+            files.append(name)
+    return files
 
 
 def _check_output(path: Path) -> None:
