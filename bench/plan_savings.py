@@ -62,6 +62,12 @@ def cases(quick: bool) -> list[Case]:
              T.caster_on_ground(), {"camera": CAMERA, "lights": [LIGHT]}),
         Case("caster_on_ground, all outputs", "outputs: color, visibility, depth, light_depth",
              T.caster_on_ground(), {"camera": CAMERA, "lights": [LIGHT], "outputs": ALL_OUTPUTS}),
+        Case("caster_on_ground, depth", "outputs: depth only (no light pass, no shading)",
+             T.caster_on_ground(), {"camera": CAMERA, "lights": [LIGHT], "outputs": ["depth"]}),
+        Case("CesiumMilkTruck, depth", "outputs: depth only (no light pass, no shading)",
+             C.load_model("CesiumMilkTruck.glb"), {"outputs": ["depth"]}),
+        Case("CesiumMilkTruck, light_depth", "outputs: light_depth only (no camera pass)",
+             C.load_model("CesiumMilkTruck.glb"), {"outputs": ["light_depth"]}),
         Case("Duck, lookups in shadow rectangles", "shadow lookups only where a shadow can fall",
              C.load_model("Duck.glb"), {"shadows": {"fit": "scene"}}),
         Case("demo.glb bytes twice", "scene cache (hit vs cache off)", demo_glb(),
@@ -73,7 +79,7 @@ def cases(quick: bool) -> list[Case]:
                             C.load_model(name), {}))
     else:
         out = [c for c in out if c.name in ("many_small_objects", "point_above",
-                                             "demo.glb bytes twice")]
+                                             "CesiumMilkTruck, depth", "demo.glb bytes twice")]
     return out
 
 
@@ -99,6 +105,9 @@ def plan_summary(plan: dict, cache: bool = False) -> str:
     if region is not None:
         parts.append(f"lookups in {len(region['rects'])} rectangles "
                      f"({region['share']:.0%} of the frame)")
+    draws = plan["camera_pass"].get("draws", "shaded")
+    if draws != "shaded":
+        parts.append(f"camera pass: {draws}")
     variants = plan.get("shader_variants", {}).get("camera_pass")
     if variants is not None:
         parts.append(f"{len(variants)} camera variants")
@@ -169,6 +178,18 @@ def run(quick: bool, repeats: int) -> None:
         notes.append(f"Asking for all four outputs instead of colour only costs "
                      f"{alls['optimized_ms'] - color['optimized_ms']:.1f} ms "
                      f"({color['optimized_ms']:.1f} -> {alls['optimized_ms']:.1f} ms, optimized).")
+    depth = by_name.get("caster_on_ground, depth")
+    if color and depth:
+        notes.append(f"Depth alone instead of colour only: {depth['optimized_ms']:.1f} against "
+                     f"{color['optimized_ms']:.1f} ms (caster_on_ground, optimized; no light "
+                     "pass, a camera pass without lighting).")
+    truck = by_name.get("CesiumMilkTruck (model)")
+    for label in ("depth", "light_depth"):
+        row = by_name.get(f"CesiumMilkTruck, {label}")
+        if truck and row:
+            notes.append(f"CesiumMilkTruck, {label} alone instead of the default outputs: "
+                         f"{row['optimized_ms']:.1f} against {truck['optimized_ms']:.1f} ms "
+                         "(optimized).")
     cache = by_name.get("demo.glb bytes twice")
     if cache:
         notes.append(

@@ -25,6 +25,7 @@
 #define FILTER_PCF 0        // the PCF loop (of PCF_RADIUS taps either side)
 #define PCF_RADIUS 0
 #define NORMAL_OFFSET 0     // lookups moved along the normal
+#define DEPTH_ONLY 0        // the depth alone is output: the cut-out's discard, no shading
 
 #include "chunks/lighting.glsl"
 #include "chunks/shadow_2d.glsl"
@@ -111,6 +112,10 @@ void main() {
     float coverage = base.a;
 #endif
     if (coverage < u_alpha_cutoff) discard;
+#endif
+#if DEPTH_ONLY
+    o_color = vec4(0.0);  // not written (the colour mask is off): the depth test's write counts
+    return;
 #endif
     float vis[VIS_SIZE];
     for (int k = 0; k < VIS_SIZE; ++k) vis[k] = 1.0;

@@ -296,3 +296,16 @@ def test_unlit_receivers_need_no_map_without_a_visibility_output(renderer, hexag
     assert colour.plan["light_passes"] == 0
     assert colour.plan["lights"][0]["skipped_pass"] == (
         "no_visible_receiver" if hexagon else "no_caster_in_frustum")
+
+
+@pytest.mark.parametrize("outputs", [["light_depth"], ["color", "light_depth"]])
+def test_an_unlit_scene_still_gets_the_light_depth_it_asks_for(renderer, outputs):
+    """A light_depth output shows the map itself: fitted to the unlit receivers as with the
+    visibility output (it was left out, and the result had no light_depth, unsaid)."""
+    scene = load_scene(_unlit(hexagon=True, ground=True))
+    asked = renderer.render(scene, RenderParams.model_validate({**VIEW, "outputs": outputs}))
+    shown = renderer.render(scene, RenderParams.model_validate(
+        {**VIEW, "outputs": ["visibility", "light_depth"]}))
+    assert asked.plan["light_passes"] == 1 and len(asked.light_depth) == 1
+    assert "unlit_receivers" not in asked.plan["camera_pass"]["skipped"]
+    np.testing.assert_array_equal(asked.light_depth[0].depth, shown.light_depth[0].depth)

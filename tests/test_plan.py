@@ -154,6 +154,41 @@ def test_outputs_not_requested_are_not_computed(renderer):
     assert all("OUT_VISIBILITY=1" in v for v in r.plan["shader_variants"]["camera_pass"])
 
 
+@pytest.mark.parametrize("name", ["AlphaBlendModeTest.glb", "CesiumMilkTruck.glb",
+                                  "TestScene.gltf"])
+def test_a_depth_only_request_draws_no_light_pass_and_no_shading(renderer, models, name):
+    """Depth alone shows no shadow and no colour: no light pass, and a camera pass that only
+    discards cut-outs (blended surfaces, which write no depth, are not drawn). Its depth is the
+    shaded frame's, bit for bit, cut-outs and blended surfaces included (AlphaBlendModeTest)."""
+    scene = load_model(models, name)
+    request = {"width": 320, "height": 240, "ground": True}
+    shaded = renderer.render(scene, RenderParams(outputs=["color", "depth"], **request))
+    on, off = both(renderer, scene, outputs=["depth"], **request)
+    np.testing.assert_array_equal(on.depth, shaded.depth)
+    np.testing.assert_array_equal(off.depth, shaded.depth)
+    assert np.isfinite(on.depth).mean() > 0.5
+    assert on.color is None and on.visibility is None and on.light_depth == []
+    assert on.plan["light_passes"] == 0 and on.plan["camera_pass"]["draws"] == "depth"
+    assert {lp["skipped_pass"] for lp in on.plan["lights"]} == {"no_shadow_output"}
+    variants = on.plan["shader_variants"]["camera_pass"]
+    assert variants and all("DEPTH_ONLY" in v.split() and "NUM_LIGHTS" not in v for v in variants)
+    # Without optimize everything is drawn as for the colour.
+    assert off.plan["light_passes"] >= 1 and off.plan["camera_pass"]["draws"] == "shaded"
+
+
+def test_a_light_depth_only_request_draws_no_camera_pass(renderer):
+    scene = T.caster_on_ground()
+    with_colour = renderer.render(scene, RenderParams(camera=CAMERA,
+                                                      outputs=["color", "light_depth"]))
+    alone = renderer.render(scene, RenderParams(camera=CAMERA, outputs=["light_depth"]))
+    assert alone.plan["camera_pass"]["draws"] == "none"
+    assert alone.plan["camera_pass"]["drawn"] == 0 and alone.timings["camera"] < 0.001
+    assert alone.plan["shader_variants"]["camera_pass"] == []
+    assert alone.color is None and alone.depth is None and alone.visibility is None
+    assert len(alone.light_depth) == len(with_colour.light_depth) == 1
+    np.testing.assert_array_equal(alone.light_depth[0].depth, with_colour.light_depth[0].depth)
+
+
 def test_same_bytes_are_parsed_and_uploaded_once(renderer):
     data = demo_glb()
     renderer.context.make_current()

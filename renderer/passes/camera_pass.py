@@ -22,6 +22,7 @@ from ..limits import MAX_CASCADES
 from ..params import RenderParams
 from ..plan import LightShadow, RenderPlan
 from ..plan import shadow_region as SR
+from ..plan.context import CAMERA_OUTPUTS
 from ..scene import Material, instance_arrays
 from ..shader_constants import LIGHT_TYPES
 from .light_pass import ShadowMap
@@ -103,9 +104,12 @@ class CameraPass:
 
     def render(self, gpu: GpuScene, plan: RenderPlan, maps: list[ShadowMap],
                params: RenderParams) -> None:
-        """Draw the frame into the camera framebuffer (read it back with :meth:`read`)."""
-        cam = plan.camera
+        """Draw the frame into the camera framebuffer (read it back with :meth:`read`); nothing
+        where no output asks for the camera's picture (``plan.camera_mode`` ``"none"``)."""
         self.variants = set()
+        if plan.camera_mode == "none":
+            return
+        cam = plan.camera
         n_lights = len(plan.lights)
         want_vis = "visibility" in params.outputs and n_lights > 0
         vis_targets = (n_lights + 3) // 4 if want_vis else 0
@@ -124,11 +128,16 @@ class CameraPass:
         clip_control = self._clip_control
         if callable(clip_control):
             clip_control(GL.GL_LOWER_LEFT, GL.GL_ZERO_TO_ONE)
+        depth_only = plan.camera_mode == "depth"
+        if depth_only:  # the colour is not read: not written either
+            GL.glColorMask(GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
         try:
             self._draw(gpu, plan, maps, params, vis_targets)
         finally:  # the light pass and everything else draw with GL's default depth range
             if callable(clip_control):
                 clip_control(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
+            if depth_only:
+                GL.glColorMask(GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
 
     def _draw(self, gpu: GpuScene, plan: RenderPlan, maps: list[ShadowMap],
               params: RenderParams, vis_targets: int) -> None:
@@ -149,6 +158,9 @@ class CameraPass:
             blended = blended[np.argsort(-distance, kind="stable")]
         region = plan.shadow_region
         opaque = self._opaque(gpu, visible)
+        if frame.depth_only:  # blended surfaces write no depth: nothing of them is output
+            self._draw_groups(gpu, gpu.groups(opaque, receive), frame, units)
+            return
         if not frame.maps or region is None or not region.split:
             self._draw_groups(gpu, gpu.groups(opaque, receive), frame, units)
             self._draw_blended(gpu, gpu.runs(blended, receive), frame, units, vis_targets)
@@ -268,10 +280,11 @@ class CameraPass:
                 # renderer's plan cache hands the same object back for a repeated request,
                 # and the plan's key covers the request's every field) holds them already.
                 if prog.frame_plan is not plan or prog.frame_units != units:
-                    frame.set_frame_uniforms(prog, units, lenient=mat.unlit)
+                    frame.set_frame_uniforms(prog, units, lenient=mat.unlit or frame.depth_only)
                     prog.frame_plan, prog.frame_units = plan, list(units)
                 frame.ready.add(prog.id)
-            prog.set("u_base_color", mat.base_color)
+            if not frame.depth_only or frame.alpha_mask(mat):  # a depth-only draw's cut-out
+                prog.set("u_base_color", mat.base_color)
             if frame.has_uv(gp):
                 GL.glActiveTexture(GL.GL_TEXTURE0)
                 if gp.texture is not None:
@@ -302,6 +315,8 @@ class CameraPass:
     def read(self, outputs: Sequence[str], n_lights: int, alpha: bool,
              camera: Camera) -> CameraOutputs:
         """Read back the requested outputs of the last frame."""
+        if not CAMERA_OUTPUTS.intersection(outputs):  # no camera pass was drawn for them
+            return CameraOutputs()
         fb = self.fbo
         if fb is None:
             raise RenderError("the camera pass has not drawn a frame to read")
@@ -509,6 +524,7 @@ class _FrameState:
         self.plan, self.maps, self.params = plan, maps, params
         self.view_proj, self.eye, self.vis_targets = view_proj, eye, vis_targets
         self.generic = generic
+        self.depth_only = plan.camera_mode == "depth"
         self.ready: set[int] = set()  # programs whose frame uniforms are set
         self.bare: _FrameState | None = None  # without_maps()
         self._variants: dict[int, tuple[GpuPrimitive, dict[str, int | bool | str], tuple]] = {}
@@ -550,6 +566,8 @@ class _FrameState:
         return self.bare
 
     def has_uv(self, gp: GpuPrimitive) -> bool:
+        if self.depth_only:  # only a cut-out reads its texture
+            return self.alpha_mask(gp.material) and gp.texture is not None
         return self.generic or gp.texture is not None
 
     def alpha_mask(self, mat: Material) -> bool:
@@ -567,7 +585,19 @@ class _FrameState:
     def defines(self, gp: GpuPrimitive, mat: Material) -> dict[str, int | bool | str]:
         shadows = self.params.shadows
         has_color = gp.has_color
-        d: dict[str, int | bool | str] = {
+        if self.depth_only:
+            # No lights, maps or outputs but the depth; a cut-out keeps what its coverage reads
+            # (the base colour's alpha, the texture's, the vertex colours').
+            mask = self.alpha_mask(mat)
+            d: dict[str, int | bool | str] = {
+                "DEPTH_ONLY": True, "ALPHA_MASK": mask, "LOC_MODEL": gp.loc_model,
+                "HAS_UV": self.has_uv(gp), "HAS_COLOR": mask and has_color}
+            if d["HAS_UV"]:
+                d["LOC_UV"] = gp.loc_uv
+            if d["HAS_COLOR"]:
+                d["LOC_COLOR"] = gp.loc_color
+            return d
+        d = {
             "NUM_LIGHTS": len(self.plan.lights),
             "NUM_MAPS_2D": self.n_2d,
             "NUM_MAPS_CUBE": self.n_cube,

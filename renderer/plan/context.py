@@ -67,11 +67,30 @@ def _pow2_at_least(x: float, lo: int, hi: int) -> int:
     return int(min(hi, 2 ** math.ceil(math.log2(x))))
 
 
+#: The outputs a shadow shows in: the colour, the visibility, and the light's own depth map.
+SHADOW_OUTPUTS = frozenset({"color", "visibility", "light_depth"})
+#: The outputs the camera pass draws for.
+CAMERA_OUTPUTS = frozenset({"color", "visibility", "depth"})
+
+
+def camera_mode(params: RenderParams) -> str:
+    """What the camera pass draws for the request's outputs: ``"shaded"`` (colour or
+    visibility asked: lights, shadows, materials), ``"depth"`` (only the depth among the camera's
+    outputs: no lighting, no lookups, no blended surfaces, which write no depth; the alpha
+    cut-out still discards) or ``"none"`` (only the light's depth maps: no camera pass). Without
+    ``optimize`` it always shades."""
+    asked = CAMERA_OUTPUTS.intersection(params.outputs)
+    if not params.optimize or asked & {"color", "visibility"}:
+        return "shaded"
+    return "depth" if asked else "none"
+
+
 def shown_receivers(arrays: SceneArrays, params: RenderParams) -> np.ndarray:
     """The receivers whose shadows the request shows (N,) bool: every receiving instance, but
     for those of unlit materials (``KHR_materials_unlit``, whose colour shows no shadow) when no
-    ``visibility`` output asks for their shadows. Maps are fitted to these alone."""
-    if "visibility" in params.outputs or not arrays.unlit.any():
+    ``visibility`` output asks for their shadows and no ``light_depth`` output for the maps
+    themselves (fitted as they would be with ``visibility``). Maps are fitted to these alone."""
+    if not arrays.unlit.any() or {"visibility", "light_depth"}.intersection(params.outputs):
         return arrays.receive
     return _frozen(arrays.receive & ~arrays.unlit)
 

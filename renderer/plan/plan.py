@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .cascades import CascadeFit, plan_cascades
-from .context import MIN_AUTO_MAP, PlanContext, Toward
+from .context import MIN_AUTO_MAP, SHADOW_OUTPUTS, PlanContext, Toward, camera_mode
 from .culling import near_first, select_casters
 from .fit import (
     DEPTH_STEP_WARN_TEXELS,
@@ -68,7 +68,8 @@ class LightShadow:
         None: no light pass (see ``reason``); the light still shades, with visibility 1.
     reason : str or None
         Why there is no pass: "cast_shadows_false", "no_caster", "no_visible_receiver",
-        "no_caster_in_frustum", "no_shadow_in_view" (no caster's shadow volume reaches a
+        "no_caster_in_frustum", "no_shadow_output" (with ``optimize``: the outputs asked
+        for show no shadow, depth alone), "no_shadow_in_view" (no caster's shadow volume reaches a
         visible pixel of a receiver) or "below_precision" (the casters are narrower than
         float32 resolves at their distance from the origin, or a spot or point light's depth
         range rounds away; with a warning).
@@ -240,8 +241,10 @@ class RenderPlan:
         receiver), and without any map (no lookup anywhere).
     unlit_receivers : int
         Receiving instances of unlit materials left out of the maps' receivers: their colour
-        shows no shadow and no ``visibility`` output asks for it
+        shows no shadow and no ``visibility`` (or ``light_depth``) output asks for it
         (:func:`.context.shown_receivers`).
+    camera_mode : {"shaded", "depth", "none"}
+        What the camera pass draws for the outputs (:func:`.context.camera_mode`).
     """
 
     camera: Camera
@@ -255,6 +258,7 @@ class RenderPlan:
     fit: str = "view"
     shadow_region: ShadowRegion | None = None
     unlit_receivers: int = 0
+    camera_mode: str = "shaded"
 
     @property
     def map_lights(self) -> list[LightShadow]:
@@ -263,7 +267,8 @@ class RenderPlan:
         return [m for lp in self.lights for m in lp.maps]
 
     def to_dict(self) -> dict[str, Any]:
-        camera_pass: dict[str, Any] = {"drawn": len(self.visible),
+        drawn = 0 if self.camera_mode == "none" else len(self.visible)
+        camera_pass: dict[str, Any] = {"drawn": drawn, "draws": self.camera_mode,
                                        "order": "near_first" if self.optimize else "file",
                                        "skipped": {"outside_view": self.culled}}
         if self.shadow_region is not None and self.map_lights:
@@ -344,6 +349,7 @@ def make_plan(
         shadow_region=region,
         unlit_receivers=int(np.count_nonzero(ctx.arrays.receive != ctx.receive))
         if ctx.arrays is not None else 0,
+        camera_mode=camera_mode(params),
     )
 
 
@@ -614,6 +620,8 @@ def _shadow(ctx: PlanContext, s: Subject) -> tuple[Fit, list[int], dict[str, int
     """(fit, casters to draw, skip counts) of one light, or why it has no pass."""
     if not s.light.cast_shadows:
         return Skip("cast_shadows_false")
+    if ctx.optimize and not SHADOW_OUTPUTS.intersection(ctx.params.outputs):
+        return Skip("no_shadow_output")
     if not ctx.cast.any():
         return Skip("no_caster")
     if len(s.receivers) == 0:
