@@ -326,9 +326,11 @@ def make_plan(
     else:
         planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
     region = None
+    mode = camera_mode(params)
     # Past MAX_SPLIT_RECEIVERS visible receivers each one would be drawn with lookups anyway;
-    # without a map there is no lookup to leave out (nor a region in the report).
-    if (params.optimize and camera.width * camera.height >= MIN_REGION_PIXELS
+    # without a map, or without a shaded camera pass, there is no lookup to leave out (nor a
+    # region in the report).
+    if (params.optimize and mode == "shaded" and camera.width * camera.height >= MIN_REGION_PIXELS
             and any(lp.maps for lp in planned)
             and int(ctx.receive[visible].sum()) <= MAX_SPLIT_RECEIVERS):
         planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
@@ -349,7 +351,7 @@ def make_plan(
         shadow_region=region,
         unlit_receivers=int(np.count_nonzero(ctx.arrays.receive != ctx.receive))
         if ctx.arrays is not None else 0,
-        camera_mode=camera_mode(params),
+        camera_mode=mode,
     )
 
 
