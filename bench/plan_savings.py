@@ -64,6 +64,10 @@ def cases(quick: bool) -> list[Case]:
              T.caster_on_ground(), {"camera": CAMERA, "lights": [LIGHT], "outputs": ALL_OUTPUTS}),
         Case("caster_on_ground, depth", "outputs: depth only (no light pass, no shading)",
              T.caster_on_ground(), {"camera": CAMERA, "lights": [LIGHT], "outputs": ["depth"]}),
+        Case("CesiumMilkTruck, visibility", "outputs: visibility only (lookups, no shading)",
+             C.load_model("CesiumMilkTruck.glb"), {"outputs": ["visibility"]}),
+        Case("CesiumMilkTruck, color and visibility", "outputs: color, visibility",
+             C.load_model("CesiumMilkTruck.glb"), {"outputs": ["color", "visibility"]}),
         Case("CesiumMilkTruck, depth", "outputs: depth only (no light pass, no shading)",
              C.load_model("CesiumMilkTruck.glb"), {"outputs": ["depth"]}),
         Case("CesiumMilkTruck, light_depth", "outputs: light_depth only (no camera pass)",
@@ -184,6 +188,12 @@ def run(quick: bool, repeats: int) -> None:
                      f"{color['optimized_ms']:.1f} ms (caster_on_ground, optimized; no light "
                      "pass, a camera pass without lighting).")
     truck = by_name.get("CesiumMilkTruck (model)")
+    both_out = by_name.get("CesiumMilkTruck, color and visibility")
+    vis_only = by_name.get("CesiumMilkTruck, visibility")
+    if both_out and vis_only:
+        notes.append(f"CesiumMilkTruck, visibility alone instead of colour and visibility: "
+                     f"{vis_only['optimized_ms']:.1f} against {both_out['optimized_ms']:.1f} ms "
+                     "(optimized; the same visibility, no shading).")
     for label in ("depth", "light_depth"):
         row = by_name.get(f"CesiumMilkTruck, {label}")
         if truck and row:

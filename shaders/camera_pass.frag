@@ -26,6 +26,7 @@
 #define PCF_RADIUS 0
 #define NORMAL_OFFSET 0     // lookups moved along the normal
 #define DEPTH_ONLY 0        // the depth alone is output: the cut-out's discard, no shading
+#define NO_COLOR 0          // no colour output: the lookups for the visibility, no shading
 
 #include "chunks/lighting.glsl"
 #include "chunks/shadow_2d.glsl"
@@ -177,7 +178,11 @@ void main() {
     // outputs the compiler drops the lighting above.
     color = base.rgb;
 #endif
+#if NO_COLOR
+    o_color = vec4(0.0);  // not written (its colour mask is off); the shading compiles away
+#else
     o_color = vec4(linear_to_srgb(color), base.a);
+#endif
 #if OUT_VISIBILITY > 0
     for (int k = 0; k < OUT_VISIBILITY; ++k) {
         o_visibility[k] = vec4(vis[4 * k], vis[4 * k + 1], vis[4 * k + 2], vis[4 * k + 3]);

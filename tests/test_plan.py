@@ -176,6 +176,30 @@ def test_a_depth_only_request_draws_no_light_pass_and_no_shading(renderer, model
     assert off.plan["light_passes"] >= 1 and off.plan["camera_pass"]["draws"] == "shaded"
 
 
+@pytest.mark.parametrize("name", ["AlphaBlendModeTest.glb", "CesiumMilkTruck.glb",
+                                  "TestScene.gltf"])
+def test_a_visibility_request_without_colour_runs_the_lookups_alone(renderer, models, name):
+    """Visibility without colour: the lookups of every light kind (cascades, spot, point), no
+    shading, no blended surfaces (they write no visibility); the same visibility and depth as
+    the shaded frame's, bit for bit."""
+    scene = load_model(models, name)
+    lights = [{"direction": [-0.5, -1, 0.2]},
+              {"type": "spot", "position": [2, 4, 3], "target": [0, 0, 0], "outer_cone_deg": 50},
+              {"type": "point", "position": [0.5, 3, 0.5]}]
+    request = {"width": 320, "height": 240, "ground": True, "lights": lights}
+    shaded = renderer.render(scene, RenderParams(outputs=["color", "visibility", "depth"],
+                                                 **request))
+    alone = renderer.render(scene, RenderParams(outputs=["visibility", "depth"], **request))
+    np.testing.assert_array_equal(alone.visibility, shaded.visibility)
+    np.testing.assert_array_equal(alone.depth, shaded.depth)
+    assert (alone.visibility == 0).any() and alone.color is None
+    assert alone.plan["camera_pass"]["draws"] == "visibility"
+    assert alone.plan["light_passes"] == shaded.plan["light_passes"] >= 3
+    variants = alone.plan["shader_variants"]["camera_pass"]
+    assert variants and all("NO_COLOR" in v.split() and "UNLIT" not in v.split()
+                            for v in variants)
+
+
 def test_a_light_depth_only_request_draws_no_camera_pass(renderer):
     scene = T.caster_on_ground()
     with_colour = renderer.render(scene, RenderParams(camera=CAMERA,

@@ -128,16 +128,16 @@ class CameraPass:
         clip_control = self._clip_control
         if callable(clip_control):
             clip_control(GL.GL_LOWER_LEFT, GL.GL_ZERO_TO_ONE)
-        depth_only = plan.camera_mode == "depth"
-        if depth_only:  # the colour is not read: not written either
-            GL.glColorMask(GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
+        no_color = plan.camera_mode != "shaded"
+        if no_color:  # the colour is not read: not written either
+            GL.glColorMaski(0, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
         try:
             self._draw(gpu, plan, maps, params, vis_targets)
         finally:  # the light pass and everything else draw with GL's default depth range
             if callable(clip_control):
                 clip_control(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
-            if depth_only:
-                GL.glColorMask(GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
+            if no_color:
+                GL.glColorMaski(0, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
 
     def _draw(self, gpu: GpuScene, plan: RenderPlan, maps: list[ShadowMap],
               params: RenderParams, vis_targets: int) -> None:
@@ -158,9 +158,8 @@ class CameraPass:
             blended = blended[np.argsort(-distance, kind="stable")]
         region = plan.shadow_region
         opaque = self._opaque(gpu, visible)
-        if frame.depth_only:  # blended surfaces write no depth: nothing of them is output
-            self._draw_groups(gpu, gpu.groups(opaque, receive), frame, units)
-            return
+        if frame.no_color:  # blended surfaces write no depth or visibility: nothing is output
+            blended = blended[:0]
         if not frame.maps or region is None or not region.split:
             self._draw_groups(gpu, gpu.groups(opaque, receive), frame, units)
             self._draw_blended(gpu, gpu.runs(blended, receive), frame, units, vis_targets)
@@ -186,10 +185,10 @@ class CameraPass:
         # Blended surfaces write no depth: they are drawn in each part of the frame, back to
         # front, with lookups inside the region's bounding rectangle and without outside it.
         inside = [] if region.rect is None or region.whole(region.rect) else [region.rect]
-        if region.rect is not None:
+        if region.rect is not None and len(blended):
             self._draw_blended(gpu, gpu.runs(blended, receive), frame, units, vis_targets,
                                inside)
-        if region.rect is None or inside:
+        if (region.rect is None or inside) and len(blended):
             self._draw_blended(gpu, gpu.runs(blended), plain, [], vis_targets,
                                region.outside(region.rect))
 
@@ -280,10 +279,10 @@ class CameraPass:
                 # renderer's plan cache hands the same object back for a repeated request,
                 # and the plan's key covers the request's every field) holds them already.
                 if prog.frame_plan is not plan or prog.frame_units != units:
-                    frame.set_frame_uniforms(prog, units, lenient=mat.unlit or frame.depth_only)
+                    frame.set_frame_uniforms(prog, units, lenient=mat.unlit or frame.no_color)
                     prog.frame_plan, prog.frame_units = plan, list(units)
                 frame.ready.add(prog.id)
-            if not frame.depth_only or frame.alpha_mask(mat):  # a depth-only draw's cut-out
+            if not frame.no_color or frame.alpha_mask(mat):  # without colour: the cut-out's
                 prog.set("u_base_color", mat.base_color)
             if frame.has_uv(gp):
                 GL.glActiveTexture(GL.GL_TEXTURE0)
@@ -525,6 +524,7 @@ class _FrameState:
         self.view_proj, self.eye, self.vis_targets = view_proj, eye, vis_targets
         self.generic = generic
         self.depth_only = plan.camera_mode == "depth"
+        self.no_color = plan.camera_mode != "shaded"  # visibility or depth: no shading
         self.ready: set[int] = set()  # programs whose frame uniforms are set
         self.bare: _FrameState | None = None  # without_maps()
         self._variants: dict[int, tuple[GpuPrimitive, dict[str, int | bool | str], tuple]] = {}
@@ -566,7 +566,7 @@ class _FrameState:
         return self.bare
 
     def has_uv(self, gp: GpuPrimitive) -> bool:
-        if self.depth_only:  # only a cut-out reads its texture
+        if self.no_color:  # only a cut-out reads its texture
             return self.alpha_mask(gp.material) and gp.texture is not None
         return self.generic or gp.texture is not None
 
@@ -606,9 +606,11 @@ class _FrameState:
             "HAS_SPOT": self.has_spot,
             "HAS_POSITIONAL": self.has_positional,
             "HAS_UV": self.has_uv(gp),
-            "HAS_COLOR": self.generic or has_color,
+            "HAS_COLOR": self.generic or has_color and (not self.no_color or self.alpha_mask(mat)),
             "ALPHA_MASK": self.alpha_mask(mat),
-            "UNLIT": mat.unlit,
+            # An unlit surface's visibility is a lit one's: only its colour differs.
+            "UNLIT": mat.unlit and not self.no_color,
+            "NO_COLOR": self.no_color,
             "OUT_VISIBILITY": self.vis_targets,
             "ENCODING": encodings.ENCODING_ID[shadows.encoding],
             "FILTER_PCF": self.pcf,

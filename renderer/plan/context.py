@@ -74,14 +74,17 @@ CAMERA_OUTPUTS = frozenset({"color", "visibility", "depth"})
 
 
 def camera_mode(params: RenderParams) -> str:
-    """What the camera pass draws for the request's outputs: ``"shaded"`` (colour or
-    visibility asked: lights, shadows, materials), ``"depth"`` (only the depth among the camera's
-    outputs: no lighting, no lookups, no blended surfaces, which write no depth; the alpha
-    cut-out still discards) or ``"none"`` (only the light's depth maps: no camera pass). Without
-    ``optimize`` it always shades."""
+    """What the camera pass draws for the request's outputs: ``"shaded"`` (the colour asked:
+    lights, shadows, materials), ``"visibility"`` (visibility without colour: the shadow lookups
+    alone, no shading and no blended surfaces, which write no visibility), ``"depth"`` (only the
+    depth among the camera's outputs: no lookups either, no blended surfaces, which write no
+    depth) or ``"none"`` (only the light's depth maps: no camera pass). The alpha cut-out
+    discards in each. Without ``optimize`` it always shades."""
     asked = CAMERA_OUTPUTS.intersection(params.outputs)
-    if not params.optimize or asked & {"color", "visibility"}:
+    if not params.optimize or "color" in asked:
         return "shaded"
+    if "visibility" in asked:
+        return "visibility"
     return "depth" if asked else "none"
 
 

@@ -243,7 +243,7 @@ class RenderPlan:
         Receiving instances of unlit materials left out of the maps' receivers: their colour
         shows no shadow and no ``visibility`` (or ``light_depth``) output asks for it
         (:func:`.context.shown_receivers`).
-    camera_mode : {"shaded", "depth", "none"}
+    camera_mode : {"shaded", "visibility", "depth", "none"}
         What the camera pass draws for the outputs (:func:`.context.camera_mode`).
     """
 
@@ -328,9 +328,10 @@ def make_plan(
     region = None
     mode = camera_mode(params)
     # Past MAX_SPLIT_RECEIVERS visible receivers each one would be drawn with lookups anyway;
-    # without a map, or without a shaded camera pass, there is no lookup to leave out (nor a
+    # without a map, or without lookups in the camera pass, there is no lookup to leave out (nor a
     # region in the report).
-    if (params.optimize and mode == "shaded" and camera.width * camera.height >= MIN_REGION_PIXELS
+    if (params.optimize and mode in ("shaded", "visibility")
+            and camera.width * camera.height >= MIN_REGION_PIXELS
             and any(lp.maps for lp in planned)
             and int(ctx.receive[visible].sum()) <= MAX_SPLIT_RECEIVERS):
         planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
