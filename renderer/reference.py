@@ -34,7 +34,14 @@ from .camera import Camera, view_origin
 from .errors import ReferenceUnavailable, RequestError
 from .lights import Light
 from .plan.geometry import FACING_COS
-from .scene import BLEND_SHADOW_CUTOFF, Scene
+from .scene import (
+    BLEND_SHADOW_CUTOFF,
+    CLAMP_TO_EDGE,
+    MIRRORED_REPEAT,
+    NEAREST,
+    Sampler,
+    Scene,
+)
 
 #: Continuation step of primary rays through cut-outs, as a fraction of the scene diagonal.
 EPS_REL = 1e-5
@@ -88,12 +95,25 @@ def _embree() -> tuple[Any, Any]:
     return rtcore_scene.EmbreeScene, TriangleMesh
 
 
-def _texel_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Alpha at ``uv`` as the renderer samples cut-outs: bilinear, level 0, repeat wrapping.
+def _wrapped(i: np.ndarray, size: int, wrap: int) -> np.ndarray:
+    """Texel indices ``i`` (int64) wrapped into ``[0, size)`` as GL wraps them."""
+    if wrap == CLAMP_TO_EDGE:
+        return np.clip(i, 0, size - 1)
+    if wrap == MIRRORED_REPEAT:  # period 2 * size: 0 .. size - 1, then size - 1 .. 0
+        m = i % (2 * size)
+        return np.where(m < size, m, 2 * size - 1 - m)
+    return i % size
 
-    Both passes test alpha with ``textureLod(..., 0.0)`` through a ``GL_LINEAR`` sampler, so the
-    edge of a cut-out is where the bilinear interpolation of its texels crosses the cutoff; a
-    nearest-texel truth would put that edge up to half a texture texel elsewhere.
+
+def _texel_alpha(texture: np.ndarray, uv: np.ndarray, sampler: Sampler
+                 ) -> np.ndarray:
+    """Alpha at ``uv`` as the renderer samples cut-outs: level 0, through the material's
+    sampler (its magnification filter, bilinear or nearest, and its wrap modes).
+
+    Both passes test alpha with ``textureLod(..., 0.0)``, which reads level 0 through the
+    magnification filter, so with ``LINEAR`` the edge of a cut-out is where the bilinear
+    interpolation of its texels crosses the cutoff; a nearest-texel truth would put that edge up
+    to half a texture texel elsewhere.
 
     Parameters
     ----------
@@ -102,27 +122,33 @@ def _texel_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     uv : ndarray, shape (M, 2)
         :attr:`Primitive.uv`. trimesh flips glTF's ``v`` on load (``v = 1 - TEXCOORD_0.v``), so
         here ``v = 1`` is the top image row; this is the file's own glTF mapping undone.
+    sampler : Sampler
 
     Returns
     -------
     ndarray, shape (M,), float64 in [0, 1]
     """
     th, tw = texture.shape[:2]
-    # Texel centres sit at half-integers (GL's convention): x = u * W - 0.5 between columns.
-    x = uv[:, 0] * tw - 0.5
-    y = (1.0 - uv[:, 1]) * th - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = x - x0
-    fy = y - y0
-    c0 = x0.astype(np.int64) % tw
-    c1 = (c0 + 1) % tw
-    r0 = y0.astype(np.int64) % th
-    r1 = (r0 + 1) % th
     a = texture[..., 3]
-    top = a[r0, c0] * (1.0 - fx) + a[r0, c1] * fx
-    bottom = a[r1, c0] * (1.0 - fx) + a[r1, c1] * fx
-    return (top * (1.0 - fy) + bottom * fy) / 255.0
+    # Texel centres sit at half-integers (GL's convention): x = u * W - 0.5 between columns.
+    # GL's v = 0 is the bottom row: row (from the top) th - 1 - y. Wrapping applies to GL's
+    # indices, so it is taken on those (a mirror is the same from either end, a clamp too).
+    x = uv[:, 0] * tw
+    y = uv[:, 1] * th
+    if sampler.mag_filter == NEAREST:
+        c = _wrapped(np.floor(x).astype(np.int64), tw, sampler.wrap_s)
+        r = _wrapped(np.floor(y).astype(np.int64), th, sampler.wrap_t)
+        return a[th - 1 - r, c] / 255.0
+    x, y = x - 0.5, y - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    c0 = _wrapped(x0.astype(np.int64), tw, sampler.wrap_s)
+    c1 = _wrapped(x0.astype(np.int64) + 1, tw, sampler.wrap_s)
+    r0 = th - 1 - _wrapped(y0.astype(np.int64), th, sampler.wrap_t)
+    r1 = th - 1 - _wrapped(y0.astype(np.int64) + 1, th, sampler.wrap_t)
+    low = a[r0, c0] * (1.0 - fx) + a[r0, c1] * fx
+    high = a[r1, c0] * (1.0 - fx) + a[r1, c1] * fx
+    return (low * (1.0 - fy) + high * fy) / 255.0
 
 
 class _Bvh:
@@ -291,7 +317,7 @@ class _Tracer:
             if mat.texture is not None and prim.uv is not None:
                 uv = np.einsum("sk,skc->sc", ws, prim.uv[idx].astype(np.float64))
                 uv = np.nan_to_num(uv, nan=0.0, posinf=0.0, neginf=0.0)
-                a *= _texel_alpha(mat.texture, uv)
+                a *= _texel_alpha(mat.texture, uv, mat.sampler)
             if prim.colors is not None:
                 a *= np.einsum("sk,sk->s", ws, prim.colors[idx, 3].astype(np.float64))
             out[sel] = a

@@ -63,6 +63,63 @@ def _read_only(*arrays: np.ndarray | None) -> None:
             a.flags.writeable = False
 
 
+#: glTF's sampler values, which are OpenGL's enums.
+NEAREST, LINEAR = 9728, 9729
+NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST = 9984, 9985
+NEAREST_MIPMAP_LINEAR, LINEAR_MIPMAP_LINEAR = 9986, 9987
+REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648
+MAG_FILTERS = {NEAREST: "NEAREST", LINEAR: "LINEAR"}
+MIN_FILTERS = {**MAG_FILTERS, NEAREST_MIPMAP_NEAREST: "NEAREST_MIPMAP_NEAREST",
+               LINEAR_MIPMAP_NEAREST: "LINEAR_MIPMAP_NEAREST",
+               NEAREST_MIPMAP_LINEAR: "NEAREST_MIPMAP_LINEAR",
+               LINEAR_MIPMAP_LINEAR: "LINEAR_MIPMAP_LINEAR"}
+WRAPS = {REPEAT: "REPEAT", CLAMP_TO_EDGE: "CLAMP_TO_EDGE", MIRRORED_REPEAT: "MIRRORED_REPEAT"}
+
+
+@dataclass(frozen=True)
+class Sampler:
+    """How a texture is filtered and wrapped: a glTF sampler, whose values are OpenGL's enums.
+
+    The defaults are glTF's for wrapping (``REPEAT``) and this renderer's choice where glTF
+    leaves the filters to the implementation (bilinear, trilinear between mipmaps).
+
+    Attributes
+    ----------
+    mag_filter : int
+        ``NEAREST`` or ``LINEAR``: the filter where a texel covers more than a pixel, and of the
+        alpha cut-out tests, which read level 0 in both passes.
+    min_filter : int
+        One of :data:`MIN_FILTERS`: the filter where a pixel covers more than a texel.
+    wrap_s, wrap_t : int
+        ``REPEAT``, ``CLAMP_TO_EDGE`` or ``MIRRORED_REPEAT``, along u and v.
+    """
+
+    mag_filter: int = LINEAR
+    min_filter: int = LINEAR_MIPMAP_LINEAR
+    wrap_s: int = REPEAT
+    wrap_t: int = REPEAT
+
+    def __post_init__(self) -> None:
+        for name, value, allowed in (("mag_filter", self.mag_filter, MAG_FILTERS),
+                                     ("min_filter", self.min_filter, MIN_FILTERS),
+                                     ("wrap_s", self.wrap_s, WRAPS),
+                                     ("wrap_t", self.wrap_t, WRAPS)):
+            if isinstance(value, bool) or not isinstance(value, int) or value not in allowed:
+                raise SceneError(f"sampler {name} {value!r} is not one of "
+                                 f"{', '.join(f'{k} ({v})' for k, v in allowed.items())}")
+
+    @property
+    def mipmapped(self) -> bool:
+        """Whether the minification filter reads mipmaps."""
+        return self.min_filter >= NEAREST_MIPMAP_NEAREST
+
+    @property
+    def periodic(self) -> tuple[bool, bool]:
+        """Per axis (u, v), whether the texture repeats (or mirrors) with a period of 2: moving
+        that coordinate by an even number samples the same texel."""
+        return self.wrap_s != CLAMP_TO_EDGE, self.wrap_t != CLAMP_TO_EDGE
+
+
 @dataclass(frozen=True, eq=False)
 class Material:
     """The parts of a glTF metallic-roughness material this renderer honours.
@@ -80,6 +137,8 @@ class Material:
     unlit : bool
         ``KHR_materials_unlit``: the colour image shows the base colour as it is (no lighting,
         no shadow); the surface still casts shadows and has visibility.
+    sampler : Sampler
+        How ``texture`` is filtered and wrapped.
     """
 
     base_color: np.ndarray
@@ -88,6 +147,7 @@ class Material:
     alpha_cutoff: float = 0.5
     double_sided: bool = False
     unlit: bool = False
+    sampler: Sampler = Sampler()
 
     def __post_init__(self) -> None:
         _read_only(self.base_color, self.texture)
@@ -1028,7 +1088,10 @@ def _built_key(primitives: list[Primitive], instances: list[Instance]) -> str:
         parts += [a.tobytes() if a is not None else b"-"
                   for a in (p.positions, p.normals, p.indices, p.uv, p.colors, m.base_color,
                             m.texture)]
-        parts.append(f"{m.alpha_mode}:{m.alpha_cutoff!r}:{m.double_sided}".encode())
+        # The texture's shape too: its bytes alone do not tell 2 x 8 texels from 4 x 4.
+        shape = None if m.texture is None else m.texture.shape
+        parts.append(f"{m.alpha_mode}:{m.alpha_cutoff!r}:{m.double_sided}:{m.unlit}:"
+                     f"{m.sampler}:{shape}".encode())
     for i in instances:
         parts.append(i.matrix.tobytes())
         parts.append(np.array([i.primitive, i.cast_shadow, i.receive_shadow], np.int64).tobytes())

@@ -31,7 +31,7 @@ from shadowmap.renderer import (
     load_scene,
 )
 from shadowmap.renderer.gltf.extensions import IGNORED, SUPPORTED
-from shadowmap.renderer.scene import MappingResolver, Scene
+from shadowmap.renderer.scene import MappingResolver, Sampler, Scene
 
 FLOAT, UBYTE, BYTE, USHORT, SHORT, UINT = 5126, 5121, 5120, 5123, 5122, 5125
 DOUBLE = 5130  # KHR_accessor_float64
@@ -859,6 +859,56 @@ def test_uvs_far_from_zero_move_by_whole_repeats_and_non_finite_ones_are_said():
     np.testing.assert_array_equal(scene.primitives[0].uv, [[0, 1], [0, 1], [0, 0]])
     (w,) = scene.warnings
     assert "1 texture coordinates (TEXCOORD_0) are not finite in float32" in w, w
+
+
+def _with_sampler(sampler, uv=UV0) -> Gltf:
+    g = _textured({"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}, uv)
+    if sampler is not None:
+        g.doc["samplers"] = [sampler]
+        g.doc["textures"][0]["sampler"] = 0
+    return g
+
+
+def test_the_texture_sampler_is_read_with_glTF_defaults():
+    mat = _with_sampler({"magFilter": 9728, "minFilter": 9986, "wrapS": 33071,
+                         "wrapT": 33648}).load().primitives[0].material
+    assert mat.sampler == Sampler(9728, 9986, 33071, 33648)
+    assert _with_sampler({}).load().primitives[0].material.sampler == Sampler()
+    assert _with_sampler(None).load().primitives[0].material.sampler == Sampler()
+    assert Sampler().wrap_s == Sampler().wrap_t == 10497  # glTF's default wrap: REPEAT
+
+
+@pytest.mark.parametrize("sampler, said", [
+    ({"wrapS": 12345}, "sampler 0 wrapS 12345 is not a glTF value; REPEAT is used"),
+    ({"magFilter": 9986}, "magFilter 9986 is not a glTF value; LINEAR is used"),
+    ({"minFilter": "LINEAR"}, "minFilter 'LINEAR' is not a glTF value"),
+    ({"wrapT": 33071.0}, "wrapT 33071.0 is not a glTF value"),
+    ({"wrapS": True}, "wrapS True is not a glTF value"),
+])
+def test_a_sampler_value_glTF_does_not_define_is_replaced_with_a_warning(sampler, said):
+    scene = _with_sampler({"wrapT": 33071, **sampler}).load()
+    (w,) = scene.warnings
+    assert said in w and "material 0 ('leaf')" in w, w
+    assert scene.primitives[0].material.sampler.wrap_t == (
+        33071 if "wrapT" not in sampler else 10497)
+
+
+def test_a_missing_sampler_is_said_and_the_defaults_used():
+    g = _with_sampler(None)
+    g.doc["textures"][0]["sampler"] = 3
+    scene = g.load()
+    (w,) = scene.warnings
+    assert "sampler 3 does not exist" in w, w
+    assert scene.primitives[0].material.sampler == Sampler()
+
+
+def test_a_clamped_axis_keeps_its_far_coordinates():
+    """Moving a coordinate by an even number of repeats samples the same texels under REPEAT
+    and MIRRORED_REPEAT only: a clamped axis keeps its own (all of them read its edge)."""
+    far = np.array([[1e6 + 0.25, 1e6 + 0.25], [1e6 + 0.5, 1e6 + 0.25], [1e6 + 0.75, 1e6 + 1]])
+    prim = _with_sampler({"wrapS": 33071, "wrapT": 33648}, far).load().primitives[0]
+    np.testing.assert_array_equal(prim.uv[:, 0], np.float32(far[:, 0]))
+    np.testing.assert_array_equal(prim.uv[:, 1], 1 - np.array([0.25, 0.25, 1.0], np.float32))
 
 
 def _reencode(fmt: str, **options) -> Callable[[bytes], bytes]:

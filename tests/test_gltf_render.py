@@ -309,3 +309,120 @@ def test_an_unlit_scene_still_gets_the_light_depth_it_asks_for(renderer, outputs
     assert asked.plan["light_passes"] == 1 and len(asked.light_depth) == 1
     assert "unlit_receivers" not in asked.plan["camera_pass"]["skipped"]
     np.testing.assert_array_equal(asked.light_depth[0].depth, shown.light_depth[0].depth)
+
+
+# -- samplers --------------------------------------------------------------------------------------
+
+#: A 2 x 2 texture, rows top to bottom: red, green / blue, white (sRGB bytes).
+TEXELS = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 255]]], np.uint8)
+#: Where on the screen (pixels of a 300 x 300 orthographic view) the quad's texture
+#: coordinates fall: u (and v) -1 .. 2 over 0 .. 300 pixels, 50 pixels a texel.
+TILE_PX = 300
+
+
+def _sampled_quad(sampler: dict | None) -> bytes:
+    """An unlit quad filling an orthographic view, its texture coordinates running from -1 to 2
+    along both axes (v downwards, as the image's rows), sampled by ``sampler``."""
+    g = Gltf()
+    g.doc["extensionsUsed"] = ["KHR_materials_unlit"]
+    rgba = np.dstack([TEXELS, np.full((2, 2), 255, np.uint8)])
+    g.doc["images"] = [{"bufferView": g.view(png(rgba)), "mimeType": "image/png"}]
+    g.doc["textures"] = [{"source": 0}]
+    if sampler is not None:
+        g.doc["samplers"] = [sampler]
+        g.doc["textures"][0]["sampler"] = 0
+    g.doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
+                           "extensions": {"KHR_materials_unlit": {}}}]
+    quad = np.array([[-3, 3, 0], [3, 3, 0], [3, -3, 0], [-3, -3, 0]], np.float32)
+    uv = np.array([[-1, -1], [2, -1], [2, 2], [-1, 2]], np.float32)
+    g.node(mesh=g.mesh({"attributes": {"POSITION": g.accessor(quad), "TEXCOORD_0":
+                                       g.accessor(uv)},
+                        "indices": g.accessor(np.array([0, 2, 1, 0, 3, 2]), ctype=USHORT),
+                        "material": 0}))
+    return g.glb()
+
+
+def _wrap(k: np.ndarray, mode: str) -> np.ndarray:
+    """The texel index of a 2-texel axis that GL's ``mode`` reads for texel position ``k``."""
+    if mode == "REPEAT":
+        return k % 2
+    if mode == "CLAMP_TO_EDGE":
+        return np.clip(k, 0, 1)
+    return np.array([0, 1, 1, 0])[k % 4]  # MIRRORED_REPEAT
+
+
+WRAP_IDS = {"REPEAT": 10497, "CLAMP_TO_EDGE": 33071, "MIRRORED_REPEAT": 33648}
+
+
+@pytest.mark.parametrize("wrap_s, wrap_t", [("REPEAT", "REPEAT"), ("CLAMP_TO_EDGE", "REPEAT"),
+                                            ("MIRRORED_REPEAT", "CLAMP_TO_EDGE")])
+@pytest.mark.parametrize("mag", ["NEAREST", "LINEAR"])
+def test_the_glTF_sampler_wraps_and_filters_the_texture(renderer, wrap_s, wrap_t, mag):
+    """Each texel centre of the 6 x 6 texel positions u, v in -1 .. 2 shows the texel the
+    sampler's wrap modes pick; a quarter texel past a centre shows that texel alone with
+    NEAREST and a 3:1 blend with its neighbour with LINEAR (it was always REPEAT, bilinear)."""
+    sampler = {"wrapS": WRAP_IDS[wrap_s], "wrapT": WRAP_IDS[wrap_t],
+               "magFilter": 9728 if mag == "NEAREST" else 9729, "minFilter": 9729}
+    scene = load_scene(_sampled_quad(sampler))
+    assert not scene.warnings, scene.warnings
+    params = RenderParams.model_validate({
+        "width": TILE_PX, "height": TILE_PX, "camera": {
+            "eye": [0, 0, 5], "target": [0, 0, 0], "projection": "orthographic", "ymag": 3}})
+    colour = renderer.render(scene, params).color.astype(int)
+    k = np.arange(-2, 4)  # texel positions, 50 pixels each, from u = -1
+    centre = (k + 2) * 50 + 25
+    cols, rows = _wrap(k, wrap_s), _wrap(k, wrap_t)
+    # Pixel centres lie half a pixel (1 % of a texel) from a texel centre, which bilinear
+    # weights (8-bit on llvmpipe) blend in a little.
+    tolerance = 1 if mag == "NEAREST" else 8
+    for r, y in zip(rows, centre, strict=True):
+        for c, x in zip(cols, centre, strict=True):
+            assert np.abs(colour[y, x] - TEXELS[r, c]).max() <= tolerance, (y, x, colour[y, x])
+    # A quarter texel (12.5 px) right of the centre of texel (0, 0) (red), towards (0, 1).
+    got = colour[centre[2], centre[2] + 13]
+    if mag == "NEAREST":
+        assert np.abs(got - TEXELS[0, 0]).max() <= 1, got
+    else:  # blended in linear light, shown in sRGB: both channels well inside (0, 255)
+        assert 60 < got[1] < 200 and 150 < got[0] < 250, got
+
+
+def _sampled_cut_out(sampler: dict) -> bytes:
+    """A MASK quad over the ground, its 4 x 4 alpha checkerboard sampled by ``sampler`` at
+    texture coordinates from -0.5 to 1.5 (so the wrap modes decide its outer ring)."""
+    g = Gltf()
+    alpha = (np.indices((4, 4)).sum(axis=0) % 2 * 255).astype(np.uint8)
+    alpha[0, :] = 255  # an opaque top row: the three wrap modes cut it apart differently
+    rgba = np.dstack([np.full((4, 4), 200, np.uint8)] * 3 + [alpha])
+    g.doc["images"] = [{"bufferView": g.view(png(rgba)), "mimeType": "image/png"}]
+    g.doc["textures"] = [{"source": 0, "sampler": 0}]
+    g.doc["samplers"] = [sampler]
+    g.doc["materials"] = [{"alphaMode": "MASK", "doubleSided": True,
+                           "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+    quad = np.array([[-1, 1, -1], [-1, 1, 1], [1, 1, 1], [1, 1, -1]], np.float32)
+    uv = np.array([[-0.5, -0.5], [-0.5, 1.5], [1.5, 1.5], [1.5, -0.5]], np.float32)
+    surface = {"attributes": {"POSITION": g.accessor(quad), "TEXCOORD_0": g.accessor(uv)},
+               "indices": g.accessor(np.array([0, 1, 2, 0, 2, 3]), ctype=USHORT),
+               "material": 0}
+    return _scene_with(surface, g)
+
+
+def test_cut_outs_follow_their_sampler_in_both_passes_and_the_reference(renderer):
+    """The light pass, the camera pass and the ray-traced reference read a cut-out's alpha
+    through its sampler alike: the shadows of one checkerboard under three samplers differ,
+    and each matches the reference."""
+    samplers = {"clamp, nearest": {"wrapS": 33071, "wrapT": 33071, "magFilter": 9728},
+                "mirror, linear": {"wrapS": 33648, "wrapT": 33648, "magFilter": 9729},
+                "repeat, nearest": {"magFilter": 9728}}
+    params = RenderParams.model_validate({
+        "width": 320, "height": 240, "camera": {"eye": [0.5, 6, 0.8], "target": [0, 0, 0]},
+        "lights": [{"direction": [0.3, -1, 0.2]}]})
+    shadows = {}
+    for name, sampler in samplers.items():
+        m = T.measure(renderer, load_scene(_sampled_cut_out(sampler)), params)
+        (metrics,) = m.metrics
+        assert metrics.iou >= 0.97 and metrics.misclassified_pct < 1.0, (name, metrics)
+        shadows[name] = m.result.visibility[..., 0] < 0.5
+    names = list(shadows)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert (shadows[a] != shadows[b]).sum() > 300, (a, b)

@@ -174,6 +174,11 @@ def test_a_depth_only_request_draws_no_light_pass_and_no_shading(renderer, model
     assert variants and all("DEPTH_ONLY" in v.split() and "NUM_LIGHTS" not in v for v in variants)
     # Without optimize everything is drawn as for the colour.
     assert off.plan["light_passes"] >= 1 and off.plan["camera_pass"]["draws"] == "shaded"
+    # With the maps' own picture asked for, the light passes run and the camera pass is the
+    # same depth-only one (it reads no map).
+    maps = renderer.render(scene, RenderParams(outputs=["depth", "light_depth"], **request))
+    np.testing.assert_array_equal(maps.depth, shaded.depth)
+    assert maps.plan["camera_pass"]["draws"] == "depth" and len(maps.light_depth) >= 1
 
 
 @pytest.mark.parametrize("name", ["AlphaBlendModeTest.glb", "CesiumMilkTruck.glb",

@@ -60,6 +60,26 @@ def test_keys_follow_content():
     assert scene_from_trimesh(red).key != a.key
 
 
+def test_keys_follow_every_part_of_a_material():
+    """Texels of one count and bytes in another shape, the sampler and unlit are content too."""
+    import dataclasses
+
+    from shadowmap.renderer.scene import Sampler, _built_key
+
+    base = scene_from_trimesh(_shelf())
+    prim = base.primitives[0]
+    texels = np.arange(64, dtype=np.uint8).reshape(4, 4, 4)
+
+    def key(**material) -> str:
+        changed = dataclasses.replace(prim, material=dataclasses.replace(prim.material,
+                                                                         **material))
+        return _built_key([changed, *base.primitives[1:]], base.instances)
+
+    keys = [key(texture=texels), key(texture=texels.reshape(2, 8, 4)),
+            key(texture=texels, sampler=Sampler(wrap_s=33071)), key(unlit=True), key()]
+    assert len(set(keys)) == len(keys)
+
+
 def test_refusals_and_warnings():
     empty = trimesh.Scene()
     with pytest.raises(SceneError, match="no triangles"):

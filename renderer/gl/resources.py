@@ -21,7 +21,7 @@ from OpenGL import GL
 
 from ..errors import RenderError
 from ..plan.instances import scene_box
-from ..scene import Material, Scene, instance_arrays
+from ..scene import Material, Sampler, Scene, instance_arrays
 
 # --------------------------------------------------------------------------------------------
 # Vertex arrays and textures
@@ -135,8 +135,10 @@ class VertexArray:
 
 
 class Texture2D:
-    """A mipmapped RGBA8 texture of an image, repeated in both directions, trilinear; with
-    ``alpha``, also its alpha channel alone at full resolution (:attr:`alpha_id`).
+    """A mipmapped RGBA8 texture of an image; with ``alpha``, also its alpha channel alone at
+    full resolution (:attr:`alpha_id`). Its own filters and wrapping are GL's defaults, which a
+    :func:`sampler_object` bound with it replaces (one image may be sampled by several glTF
+    samplers).
 
     The light pass tests cut-out casters against that R8 copy: one channel and no mipmaps, so a
     software rasterizer's sampler converts a quarter of the data per texel, and the bilinear
@@ -214,6 +216,18 @@ def _texture(data: np.ndarray, internal: int, fmt: int, mipmaps: bool) -> int:
     return tex
 
 
+def sampler_object(sampler: Sampler) -> int:
+    """A GL sampler object with a glTF sampler's filters and wrap modes (glTF's values are GL's
+    enums). Bound to a texture unit (``glBindSampler``), it replaces the parameters of whatever
+    texture is bound there."""
+    sid = int(GL.glGenSamplers(1))
+    GL.glSamplerParameteri(sid, GL.GL_TEXTURE_MAG_FILTER, sampler.mag_filter)
+    GL.glSamplerParameteri(sid, GL.GL_TEXTURE_MIN_FILTER, sampler.min_filter)
+    GL.glSamplerParameteri(sid, GL.GL_TEXTURE_WRAP_S, sampler.wrap_s)
+    GL.glSamplerParameteri(sid, GL.GL_TEXTURE_WRAP_T, sampler.wrap_t)
+    return sid
+
+
 # --------------------------------------------------------------------------------------------
 # Scene upload
 # --------------------------------------------------------------------------------------------
@@ -235,6 +249,9 @@ class GpuPrimitive:
         Indices into :attr:`Scene.instances`, in instance-buffer order (read-only).
     texture : Texture2D or None
         The base-colour texture (shared by the primitives of one image).
+    sampler : int
+        The GL sampler object of the material's :class:`~shadowmap.renderer.scene.Sampler`
+        (shared by the primitives of one sampler), bound with :attr:`texture`; 0 without one.
     loc_uv, loc_color, loc_model : int
         Attribute locations of the interleaved layout (positions 0, normals 1, then texture
         coordinates and colours when present, then the 4 columns of the model matrix).
@@ -265,6 +282,19 @@ class GpuPrimitive:
     primitive: int
     material: Material
     indirect: IndirectBuffer | None = None
+    sampler: int = 0
+
+    def bind_texture(self, unit: int = 0, alpha: bool = False) -> None:
+        """Make ``unit`` the active texture unit and bind the texture (with ``alpha``, its
+        alpha copy) and its sampler object to it. A pass that binds one takes it off again with
+        ``glBindSampler(unit, 0)``: it would override every texture later bound to the unit."""
+        assert self.texture is not None
+        GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
+        if alpha:
+            self.texture.bind_alpha()
+        else:
+            self.texture.bind()
+        GL.glBindSampler(unit, self.sampler)
 
     @property
     def mirrored(self) -> int:
@@ -446,6 +476,8 @@ class GpuScene:
     nbytes : int
         What the upload holds on the GPU: every vertex, instance-matrix and index buffer, and
         each texture once with its mipmaps (the upload cache's budget counts this).
+    samplers : dict of Sampler to int
+        The GL sampler objects of its textured materials, one per glTF sampler.
     """
 
     scene: Scene
@@ -456,6 +488,7 @@ class GpuScene:
     blended: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     nbytes: int = 0
     indirect: IndirectBuffer | None = None
+    samplers: dict[Sampler, int] = field(default_factory=dict)
     # groups() of recent calls, by (instances, split, classes): a repeated request asks for the
     # same.
     _groups: OrderedDict[tuple[bytes, int, int], tuple[np.ndarray | None, list]] = field(
@@ -509,7 +542,12 @@ class GpuScene:
                 mesh = VertexArray((prim.positions, prim.normals, prim.uv, prim.colors),
                                    poses, prim.indices)
                 tex = None
+                sid = 0
                 if prim.material.texture is not None:
+                    sid = gs.samplers.get(prim.material.sampler, 0)
+                    if not sid:
+                        sid = gs.samplers[prim.material.sampler] = sampler_object(
+                            prim.material.sampler)
                     key = id(prim.material.texture)
                     # Cut-out casters are tested against the texture's alpha copy.
                     alpha = prim.material.shadow_cutoff is not None
@@ -534,6 +572,7 @@ class GpuScene:
                     primitive=pidx,
                     material=prim.material,
                     indirect=gs.indirect,
+                    sampler=sid,
                 )
                 gs.primitives.append(gp)
                 gs.nbytes += mesh.nbytes  # what its buffers hold, instance matrices included
@@ -642,6 +681,9 @@ class GpuScene:
         self.primitives.clear()
         if self.indirect is not None:
             self.indirect.release()
+        if self.samplers:
+            GL.glDeleteSamplers(len(self.samplers), list(self.samplers.values()))
+            self.samplers.clear()
 
 
 # --------------------------------------------------------------------------------------------

@@ -565,15 +565,14 @@ class _Loader:
             self.warnings.append(f"{what}: {int((~finite).sum())} texture coordinates "
                                  f"({semantic}) are not finite in float32; drawn as (0, 0)")
             uv = np.where(finite[:, None], uv, 0.0)
-        if use.wrap is not None and (uv.min(initial=0.0) < 0.0 or uv.max(initial=1.0) > 1.0):
-            self.warnings.append(f"{what}: the texture of {use.name} wraps with {use.wrap}; "
-                                 "drawn with REPEAT")
         if len(uv) and np.abs(uv).max() > _UV_SHIFT_FROM:
-            # Far from 0, float32 keeps few bits of a repeat. The texture repeats (and mirrors)
-            # every 2 units, so moving the primitive's coordinates by an even integer towards 0
-            # samples the same texels; what then still spans too far is said.
-            uv = uv - 2.0 * np.floor(uv.min(axis=0) / 2.0)
-            span = float(uv.max())
+            # Far from 0, float32 keeps few bits of a repeat. A repeated (or mirrored) texture
+            # has a period of 2 units, so moving the primitive's coordinates by an even integer
+            # towards 0 samples the same texels; a clamped axis is left as it is (its far
+            # coordinates read the edge texels). What then still spans too far is said.
+            periodic = np.asarray(use.material.sampler.periodic)
+            uv = uv - np.where(periodic, 2.0 * np.floor(uv.min(axis=0) / 2.0), 0.0)
+            span = float(uv[:, periodic].max(initial=0.0))
             if span > _UV_SHIFT_FROM:
                 uv = np.minimum(uv, FLOAT32_MAX)  # a span past float32's range: its edge
                 # float32's step at the span; from 2**24 on, whole repeats at best.

@@ -8,9 +8,9 @@ colour of ``KHR_materials_pbrSpecularGlossiness``. Textures are decoded once per
 of them (a :class:`~shadowmap.renderer.errors.LimitError`); a texture that cannot be used
 (undecodable, too large, a missing file) is dropped with a warning naming the image and the
 material, and the render then uses the base colour factor. An image URI that could leave the
-upload is refused (:class:`~shadowmap.renderer.errors.SceneError`), as a buffer's is. Samplers
-are not read: textures are sampled with ``REPEAT`` wrapping (the loader warns when a primitive's
-UVs leave [0, 1] under another wrap mode).
+upload is refused (:class:`~shadowmap.renderer.errors.SceneError`), as a buffer's is. The
+texture's sampler gives its filters and wrap modes (:class:`~shadowmap.renderer.scene.Sampler`);
+a value glTF does not define is replaced by the default, with a warning.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import LimitError, SceneError
-from ..scene import Material, safe_uri
+from ..scene import MAG_FILTERS, MIN_FILTERS, WRAPS, Material, Sampler, safe_uri
 from .extensions import (
     materials_unlit,
     specular_glossiness,
@@ -39,8 +39,6 @@ from .reader import Buffers, Resolver, brief, extension, get_list, is_data_uri, 
 MAX_TEXTURE_PIXELS = 64 * 2**20
 #: Image formats decoded: glTF's PNG and JPEG, WebP (EXT_texture_webp) and AVIF (EXT_texture_avif).
 IMAGE_FORMATS = ("PNG", "JPEG", "WEBP", "AVIF")
-REPEAT = 10497
-WRAP_NAMES = {33071: "CLAMP_TO_EDGE", 33648: "MIRRORED_REPEAT", REPEAT: "REPEAT"}
 ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
 #: How far past glTF's [0, 1] a colour (factor or COLOR_0) may lie before its clamping is
 #: worth a warning: an exporter's rounding just past 1 is not.
@@ -71,8 +69,6 @@ class MaterialUse:
         override).
     uv_transform : ndarray or None, shape (3, 3)
         ``KHR_texture_transform`` of the base-colour texture, on glTF UVs.
-    wrap : str or None
-        The sampler's wrap mode when it is not REPEAT (drawn with REPEAT).
     name : str
         How warnings name the material.
     """
@@ -81,7 +77,6 @@ class MaterialUse:
     untextured: Material
     tex_coord: int = 0
     uv_transform: np.ndarray | None = None
-    wrap: str | None = None
     name: str = "the default material"
 
 
@@ -198,10 +193,10 @@ class Materials:
         double_sided = spec.get("doubleSided", False) is True
         untextured = Material(factor, None, alpha_mode, cutoff, double_sided,
                               materials_unlit.unlit(spec))
-        texture, tex_coord, transform, wrap = self._texture(tex_info, label)
+        texture, tex_coord, transform, sampler = self._texture(tex_info, label)
         material = (untextured if texture is None
-                    else dataclasses.replace(untextured, texture=texture))
-        return MaterialUse(material, untextured, tex_coord, transform, wrap, label)
+                    else dataclasses.replace(untextured, texture=texture, sampler=sampler))
+        return MaterialUse(material, untextured, tex_coord, transform, label)
 
     def _factor(self, value: Any, label: str) -> np.ndarray:
         if value is None:
@@ -236,13 +231,13 @@ class Materials:
         return cutoff
 
     def _texture(self, info: Any, label: str
-                 ) -> tuple[np.ndarray | None, int, np.ndarray | None, str | None]:
-        """(texture, texCoord set, uv transform, non-REPEAT wrap) of a textureInfo."""
+                 ) -> tuple[np.ndarray | None, int, np.ndarray | None, Sampler]:
+        """(texture, texCoord set, uv transform, sampler) of a textureInfo."""
         if info is None:
-            return None, 0, None, None
+            return None, 0, None, Sampler()
         if not isinstance(info, dict):
             self.warnings.append(f"{label}: base colour texture is not an object: dropped")
-            return None, 0, None, None
+            return None, 0, None, Sampler()
         tex_coord = info.get("texCoord", 0)
         if isinstance(tex_coord, bool) or not isinstance(tex_coord, int) or tex_coord < 0:
             self.warnings.append(f"{label}: texCoord {brief(tex_coord)} is invalid; 0 is used")
@@ -256,7 +251,7 @@ class Materials:
         if isinstance(tex, bool) or not isinstance(tex, int) or not 0 <= tex < len(self.textures):
             self.warnings.append(f"{label}: base colour texture {brief(tex)} does not exist: "
                                  "dropped, the base colour factor is used")
-            return None, tex_coord, transform, None
+            return None, tex_coord, transform, Sampler()
         tspec = self.textures[tex]
         tspec = tspec if isinstance(tspec, dict) else {}
         sources = [(s, by) for s, by in texture_sources.candidates(tspec)
@@ -264,7 +259,7 @@ class Materials:
         if not sources:
             self.warnings.append(f"{label}: texture {tex} has no image source this loader reads"
                                  ": dropped, the base colour factor is used")
-            return None, tex_coord, transform, None
+            return None, tex_coord, transform, Sampler()
         # The first image that decodes (an extension's WebP or AVIF, then the plain source);
         # one that does not is named, with what stood in for it.
         failed: list[str] = []
@@ -276,23 +271,37 @@ class Materials:
             if not isinstance(image, str):
                 if failed:
                     self.warnings.append(f"{'; '.join(failed)}; {what} is used instead")
-                return image, tex_coord, transform, self._wrap(tspec)
+                return image, tex_coord, transform, self._sampler(tspec, label)
             failed.append(f"{what} of {label}: {image}")
         self.warnings.append(f"{'; '.join(failed)}; the texture is dropped and the base colour "
                              "factor is used")
-        return None, tex_coord, transform, None
+        return None, tex_coord, transform, Sampler()
 
-    def _wrap(self, tspec: dict[str, Any]) -> str | None:
-        sampler = tspec.get("sampler")
-        if isinstance(sampler, bool) or not isinstance(sampler, int) or not (
-                0 <= sampler < len(self.samplers)) or not isinstance(self.samplers[sampler], dict):
-            return None
-        spec = self.samplers[sampler]
-        for key in ("wrapS", "wrapT"):
-            mode = spec.get(key, REPEAT)
-            if mode != REPEAT:
-                return WRAP_NAMES.get(mode, str(mode)) if isinstance(mode, int) else str(mode)
-        return None
+    def _sampler(self, tspec: dict[str, Any], label: str) -> Sampler:
+        """The texture's sampler: its filters and wrap modes, glTF's defaults where it gives
+        none (and for no sampler), a value glTF does not define replaced with a warning."""
+        index = tspec.get("sampler")
+        if index is None:
+            return Sampler()
+        if isinstance(index, bool) or not isinstance(index, int) or not (
+                0 <= index < len(self.samplers)) or not isinstance(self.samplers[index], dict):
+            self.warnings.append(f"{label}: sampler {brief(index)} does not exist; the texture "
+                                 "repeats, bilinear and trilinear")
+            return Sampler()
+        spec = self.samplers[index]
+        default = Sampler()
+        values = {}
+        for key, field, allowed in (("magFilter", "mag_filter", MAG_FILTERS),
+                                    ("minFilter", "min_filter", MIN_FILTERS),
+                                    ("wrapS", "wrap_s", WRAPS), ("wrapT", "wrap_t", WRAPS)):
+            value = spec.get(key, getattr(default, field))
+            if isinstance(value, bool) or not isinstance(value, int) or value not in allowed:
+                fallback = getattr(default, field)
+                self.warnings.append(f"{label}: sampler {index} {key} {brief(value)} is not a "
+                                     f"glTF value; {allowed[fallback]} is used")
+                value = fallback
+            values[field] = value
+        return Sampler(**values)
 
     def _image(self, index: int) -> np.ndarray | str:
         """The decoded image, or why it cannot be used."""

@@ -109,6 +109,8 @@ class CameraPass:
         self.variants = set()
         if plan.camera_mode == "none":
             return
+        if plan.camera_mode == "depth":
+            maps = []  # drawn for a light_depth output, if any: no lookup here reads them
         cam = plan.camera
         n_lights = len(plan.lights)
         want_vis = "visibility" in params.outputs and n_lights > 0
@@ -134,6 +136,7 @@ class CameraPass:
         try:
             self._draw(gpu, plan, maps, params, vis_targets)
         finally:  # the light pass and everything else draw with GL's default depth range
+            GL.glBindSampler(0, 0)  # the last textured draw's (GpuPrimitive.bind_texture)
             if callable(clip_control):
                 clip_control(GL.GL_LOWER_LEFT, GL.GL_NEGATIVE_ONE_TO_ONE)
             if no_color:
@@ -285,11 +288,12 @@ class CameraPass:
             if not frame.no_color or frame.alpha_mask(mat):  # without colour: the cut-out's
                 prog.set("u_base_color", mat.base_color)
             if frame.has_uv(gp):
-                GL.glActiveTexture(GL.GL_TEXTURE0)
                 if gp.texture is not None:
-                    gp.texture.bind()
+                    gp.bind_texture(0)  # with its glTF sampler
                 else:
+                    GL.glActiveTexture(GL.GL_TEXTURE0)
                     GL.glBindTexture(GL.GL_TEXTURE_2D, self._white_texture())
+                    GL.glBindSampler(0, 0)
                     GL.glVertexAttrib2f(SPARE_UV, 0.0, 0.0)
                 prog.set("u_base_texture", 0)
             if frame.generic and not gp.has_color:

@@ -353,14 +353,14 @@ class LightPass:
             if polygon_offset:
                 prog.set("u_polygon_offset", (po_factor, po_units * step))
             if texture is not None and cutoff is not None:
-                GL.glActiveTexture(GL.GL_TEXTURE0)
-                texture.bind_alpha()
+                gp.bind_texture(0, alpha=True)
                 prog.set("u_alpha_texture", 0)
                 prog.set("u_base_alpha", float(mat.base_color[3]))
                 prog.set("u_alpha_cutoff", cutoff)
             gp.draw(None if len(slots) == len(gp.instances) else slots)
         if culled:
             GL.glDisable(GL.GL_CULL_FACE)
+        GL.glBindSampler(0, 0)  # what a cut-out bound (GpuPrimitive.bind_texture)
 
     def release(self) -> None:
         self.cache.clear()  # back into the pool, released below
