@@ -69,6 +69,12 @@ def decode(rgba: np.ndarray, encoding: str) -> np.ndarray:
     raise ValueError(f"{encoding!r} has no colour packing")
 
 
+#: Rows of a map handled at once where a read-back passes over it several times (the map's
+#: picture, :func:`debug_image`; its empty texels, ``light_pass.copy_marking_empty``): a block
+#: stays in the CPU's caches between the passes (a 4096-texel row of float32 is 16 KiB).
+ROW_BLOCK = 64
+
+
 def drawn_range(t: np.ndarray) -> tuple[float, float] | None:
     """The smallest and largest depth drawn into a decoded map (None when nothing was drawn).
 
@@ -77,11 +83,14 @@ def drawn_range(t: np.ndarray) -> tuple[float, float] | None:
     t : ndarray
         Decoded linear depth, NaN where nothing was drawn.
     """
-    finite = np.isfinite(t)
-    if not finite.any():
+    # fmin and fmax pass over NaN: two reads of the map, no mask or copy of it.
+    flat = np.asarray(t).reshape(-1)
+    with np.errstate(invalid="ignore"):
+        finite = np.where(np.isinf(flat), np.nan, flat) if np.isinf(flat).any() else flat
+    lo = np.fmin.reduce(finite, initial=np.inf)
+    if not np.isfinite(lo):
         return None
-    drawn = t[finite]
-    return float(drawn.min()), float(drawn.max())
+    return float(lo), float(np.fmax.reduce(finite, initial=-np.inf))
 
 
 def debug_image(t: np.ndarray) -> np.ndarray:
@@ -105,11 +114,26 @@ def debug_image(t: np.ndarray) -> np.ndarray:
     """
     span = drawn_range(t)
     lo, hi = span if span is not None else (0.0, 1.0)
-    scale = 254.0 / (hi - lo) if hi > lo else 0.0  # one depth drawn: all black
+    scale = np.float32(254.0 / (hi - lo) if hi > lo else 0.0)  # one depth drawn: all black
+    low = np.float32(lo)
+    # A block of rows at a time through one float32 scratch block that stays in the CPU's
+    # caches (a map of 4096² is 64 MiB a pass); NaN passes through the arithmetic and the clip,
+    # and only then becomes white.
+    flat = np.asarray(t, np.float32).reshape(-1, t.shape[-1])
+    out = np.empty(flat.shape, np.uint8)
+    scratch = np.empty((ROW_BLOCK, flat.shape[1]), np.float32)
     with np.errstate(invalid="ignore"):
-        img = np.where(np.isfinite(t), np.clip((t - lo) * scale, 0.0, 254.0), 255.0)
-    img = np.rint(img).astype(np.uint8)
+        for r in range(0, len(flat), ROW_BLOCK):
+            block = flat[r:r + ROW_BLOCK]
+            v = scratch[:len(block)]
+            np.subtract(block, low, out=v)
+            v *= scale
+            np.clip(v, 0.0, 254.0, out=v)
+            np.rint(v, out=v)
+            np.copyto(v, np.float32(255.0), where=np.isnan(v))
+            out[r:r + ROW_BLOCK] = v
+    img = out.reshape(t.shape)
     if img.ndim == 3:
-        rows = [np.concatenate(list(img[r * 3 : r * 3 + 3]), axis=1) for r in range(2)]
-        img = np.concatenate(rows, axis=0)
+        halves = [np.concatenate(list(img[r * 3 : r * 3 + 3]), axis=1) for r in range(2)]
+        img = np.concatenate(halves, axis=0)
     return img

@@ -58,30 +58,63 @@ class ShadowMap:
         ndarray, shape (S, S), (6, S, S) or (K, S, S) for K cascades, float32
             Row 0 is the top of the light's view (+Y of the light).
         """
-        out: list[np.ndarray] = []
+        h, w = self.fbo.height, self.fbo.width
         if self.plan.cascades:
-            for k in range(len(self.plan.cascades)):
+            out = np.empty((len(self.plan.cascades), h, w), np.float32)
+            for k in range(len(out)):
                 self.fbo.bind_layer(k)
-                out.append(self._read())
-            return np.stack(out)
-        faces = range(6) if self.plan.kind == "cube" else [None]
-        for face in faces:
-            if face is not None:
-                if face not in self.plan.faces:
-                    out.append(np.full((self.fbo.height, self.fbo.width), np.nan, np.float32))
-                    continue
-                self.fbo.bind_face(face)
-            out.append(self._read())
-        return out[0] if face is None else np.stack(out)
+                self._read_into(out[k])
+            return out
+        if self.plan.kind != "cube":
+            out = np.empty((h, w), np.float32)
+            self._read_into(out)
+            return out
+        out = np.empty((6, h, w), np.float32)  # each face straight into its place
+        for face in range(6):
+            if face not in self.plan.faces:
+                out[face] = np.nan
+                continue
+            self.fbo.bind_face(face)
+            self._read_into(out[face])
+        return out
 
-    def _read(self) -> np.ndarray:
-        """The bound face or layer, decoded."""
+    def _read_into(self, out: np.ndarray) -> None:
+        """The bound face or layer, decoded into ``out`` (H, W), float32."""
         if self.encoding == "depth":
-            t = self.fbo.read_depth().astype(np.float64)
-        else:
-            rgba = self.fbo.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
-            t = encodings.decode(rgba, self.encoding)
-        return np.where(t >= 1.0 - 1e-6, np.nan, t).astype(np.float32)
+            # float32 as read: the threshold is the float32 nearest above 1 - 1e-6, so the
+            # comparison is the float64 one.
+            copy_marking_empty(self.fbo.read_depth(), out, _EMPTY_FLOAT32)
+            return
+        rgba = self.fbo.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
+        t = encodings.decode(rgba, self.encoding)
+        out[...] = np.where(t >= _EMPTY, np.nan, t)
+
+
+def copy_marking_empty(src: np.ndarray, out: np.ndarray, threshold: np.float32) -> None:
+    """``out[...] = src``, NaN where ``src >= threshold``, a block of rows at a time
+    (:data:`~shadowmap.renderer.encodings.ROW_BLOCK`: the block stays in the CPU's caches
+    between the two passes, where a whole map, 64 MiB at 4096², would go to memory and back).
+
+    Parameters
+    ----------
+    src : ndarray, shape (H, W), float32
+        Any strides (the read-back's bottom-up rows as a flipped view).
+    out : ndarray, shape (H, W), float32
+    """
+    nan = np.float32(np.nan)
+    step = encodings.ROW_BLOCK
+    for r in range(0, src.shape[0], step):
+        block, dst = src[r:r + step], out[r:r + step]
+        np.copyto(dst, block)
+        np.copyto(dst, nan, where=block >= threshold)
+
+
+#: Stored depth from which a texel counts as empty (the cleared far plane, 1).
+_EMPTY = 1.0 - 1e-6
+#: The smallest float32 at or above it: a float32 depth compares against it as against _EMPTY.
+_EMPTY_FLOAT32 = np.float32(_EMPTY)
+if float(_EMPTY_FLOAT32) < _EMPTY:  # compared in float64
+    _EMPTY_FLOAT32 = np.nextafter(_EMPTY_FLOAT32, np.float32(2.0))
 
 
 def map_key(scene_key: str, origin: np.ndarray, lp: LightShadow, shadows: ShadowParams) -> str:
