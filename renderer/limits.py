@@ -211,11 +211,13 @@ def map_texel_bytes(encoding: str, depth_bits: int | str = "auto") -> int:
 
 
 #: ``light_depth`` read-back bytes per texel of every map: the float32 depths and the uint8
-#: picture kept, with some slack for their copies (6); plus, for the one face being read at a
-#: time, the float64 steps of its decode (24 per texel of a face). Measured: 4 point lights
-#: with 2048² cube maps read back about 620 MB (the estimate: 600 MiB).
+#: picture kept, with some slack (6); plus, for the one face being read at a time, its raw
+#: float32 read-back (a depth texture: 4 per texel of a face) or a colour encoding's bytes and
+#: the float64 steps of its decode (40). ``tests/test_limits.py`` checks in a fresh process
+#: that the estimate is at least what the read-back raises the peak by (two 1024² cube maps,
+#: both kinds of map).
 LIGHT_DEPTH_TEXEL_BYTES = 6
-LIGHT_DEPTH_FACE_BYTES = 24
+LIGHT_DEPTH_FACE_BYTES = {"depth": 4, "encoded": 40}
 #: Camera framebuffer bytes per pixel: the RGBA8 colour and the DEPTH_COMPONENT32F depth
 #: (``passes/camera_pass.py``); plus one RGBA32F visibility target per four lights.
 CAMERA_PIXEL_BYTES = 4 + 4
@@ -346,8 +348,8 @@ def request_bytes(params: RenderParams, lights: Sequence[tuple[str, bool]], map_
     maps = texels * texel
     map_readback = 0
     if "light_depth" in params.outputs and texels:
-        map_readback = (texels * LIGHT_DEPTH_TEXEL_BYTES
-                        + map_size * map_size * LIGHT_DEPTH_FACE_BYTES)
+        face = LIGHT_DEPTH_FACE_BYTES["depth" if shadows.encoding == "depth" else "encoded"]
+        map_readback = texels * LIGHT_DEPTH_TEXEL_BYTES + map_size * map_size * face
     pixels = params.width * params.height
     n_lights = len(lights)
     targets = math.ceil(n_lights / 4) if "visibility" in params.outputs and n_lights else 0
