@@ -499,46 +499,34 @@ def test_request_bytes_counts_faces_cascades_encodings_and_outputs():
                                every.readback, every.scene, every.reference))
 
 
-#: A fresh process renders cube maps with and without their light_depth output and prints how
-#: far the second render raised its peak memory, what it kept, and the estimate.
-_READBACK_PEAK = """
-import gc, json, resource
-from shadowmap.renderer import Renderer, RenderParams
-from shadowmap.renderer import limits as lim
-from shadowmap.renderer import testing as T
-scene = T.caster_on_ground()
-lights = [{"type": "point", "position": [x, 2.5, 0.5]} for x in (-1, 1)]
-p = RenderParams.model_validate({"width": 64, "height": 48, "lights": lights,
-                                 "shadows": {"map_size": 1024, "encoding": ENCODING}})
-with Renderer() as r:
-    r.render(scene, p)  # maps, programs and pools made
-    asked = p.model_copy(update={"outputs": ["color", "light_depth"]})
-    gc.collect()
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    res = r.render(scene, asked)
-    grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) * 1024
-    kept = sum(ld.depth.nbytes + ld.image.nbytes for ld in res.light_depth)
-    estimate = lim.request_bytes(asked, lim.request_lights(asked), 1024).map_readback
-    print(json.dumps({"grown": grown, "kept": kept, "estimate": estimate}))
-"""
-
-
 @pytest.mark.gl
 @pytest.mark.parametrize("encoding", ["depth", "rgba8"])
-def test_the_light_depth_estimate_bounds_the_read_back(encoding):
-    """What max_request_bytes counts for a light_depth output is at least what reading the maps
-    back raises the process's peak by (two 1024² cube maps: 48 MiB of float32 depths and 12 MiB
-    of pictures kept, the faces' read-backs and decodes on top)."""
-    import subprocess
-    import sys
+def test_the_light_depth_estimate_bounds_the_read_back(renderer, encoding):
+    """What max_request_bytes counts for a light_depth output is at least the peak of what
+    reading the maps back allocates (two 1024² cube maps: 48 MiB of float32 depths and 12 MiB
+    of pictures kept, the faces' read-backs and decodes on top), as tracemalloc sees NumPy's
+    allocations."""
+    import tracemalloc
 
-    code = _READBACK_PEAK.replace("ENCODING", repr(encoding))
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=300)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    got = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert got["kept"] == 2 * 6 * 1024**2 * 5
-    assert got["kept"] * 0.9 <= got["grown"] <= got["estimate"], got
+    from shadowmap.renderer import testing as T
+
+    scene = T.caster_on_ground()
+    lights = [{"type": "point", "position": [x, 2.5, 0.5]} for x in (-1, 1)]
+    p = RenderParams.model_validate({"width": 64, "height": 48, "lights": lights,
+                                     "shadows": {"map_size": 1024, "encoding": encoding}})
+    renderer.render(scene, p)  # maps, programs and pools made
+    asked = p.model_copy(update={"outputs": ["color", "light_depth"]})
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        res = renderer.render(scene, asked)
+        grown = tracemalloc.get_traced_memory()[1] - before
+    finally:
+        tracemalloc.stop()
+    kept = sum(ld.depth.nbytes + ld.image.nbytes for ld in res.light_depth)
+    estimate = lim.request_bytes(asked, lim.request_lights(asked), 1024).map_readback
+    assert kept == 2 * 6 * 1024**2 * 5
+    assert kept <= grown <= estimate, (grown, kept, estimate)
 
 
 def test_check_request_is_a_lower_bound():
