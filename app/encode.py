@@ -43,7 +43,6 @@ from pydantic import BaseModel, Field
 from starlette.responses import Response
 
 from shadowmap.renderer import RenderResult
-from shadowmap.renderer.encodings import drawn_range
 from shadowmap.renderer.exr import DEPTH_CHANNEL, MEDIA_EXR, VISIBILITY_CHANNEL, exr_bytes
 
 # The PNG writer is the library's (``shadowmap batch`` writes the same files), re-exported here.
@@ -182,14 +181,7 @@ def choose_format(accept: str | None, outputs: Sequence[str]) -> str | None:
 def _shown_range(ld: LightDepth) -> dict[str, float]:
     """World distances the light-depth picture is stretched over (:func:`debug_image`): the
     nearest and farthest depth drawn; cascades, each stretched alone, give the extremes."""
-    maps = ld.depth if ld.ranges else [ld.depth]
-    ranges = ld.ranges or [(ld.near, ld.far)]
-    shown = []
-    for t, (near, far) in zip(maps, ranges, strict=True):
-        span = drawn_range(t)
-        if span is not None:
-            shown += [near + span[0] * (far - near), near + span[1] * (far - near)]
-    return {"shown_near": min(shown), "shown_far": max(shown)} if shown else {}
+    return {"shown_near": ld.shown[0], "shown_far": ld.shown[1]} if ld.shown else {}
 
 
 def encode_outputs(result: RenderResult, names: Sequence[str],

@@ -112,7 +112,12 @@ def debug_image(t: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (S, S) or (2S, 3S), uint8
     """
-    span = drawn_range(t)
+    return stretched_image(t, drawn_range(t))
+
+
+def stretched_image(t: np.ndarray, span: tuple[float, float] | None) -> np.ndarray:
+    """:func:`debug_image` of ``t`` over ``span``, its :func:`drawn_range` when the caller has
+    it already (None: nothing drawn)."""
     lo, hi = span if span is not None else (0.0, 1.0)
     scale = np.float32(254.0 / (hi - lo) if hi > lo else 0.0)  # one depth drawn: all black
     low = np.float32(lo)

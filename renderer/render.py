@@ -31,7 +31,7 @@ from .camera import (
     resolve_camera,
     view_origin,
 )
-from .encodings import debug_image
+from .encodings import drawn_range, stretched_image
 from .errors import RenderError, RequestError, SceneError, ShadowMapError
 from .ground import existing_floor
 from .lights import Light, resolve_lights
@@ -80,6 +80,9 @@ class LightDepth:
         World distances the depth is normalised over (cascades: the extremes of ``ranges``).
     ranges : list of (float, float)
         Each cascade's (near, far); empty otherwise.
+    shown : (float, float) or None
+        World distances ``image`` is stretched over: the nearest and farthest depth drawn
+        (cascades: the extremes over them); None when nothing was drawn.
     """
 
     light: int
@@ -89,6 +92,7 @@ class LightDepth:
     near: float
     far: float
     ranges: list[tuple[float, float]] = field(default_factory=list)
+    shown: tuple[float, float] | None = None
 
 
 def _request_points(params: RenderParams) -> list[np.ndarray]:
@@ -120,13 +124,29 @@ def _light_depths(maps: list) -> list[LightDepth]:
         assert lp.kind is not None  # only lights with a map pass have a ShadowMap
         depth = sm.read_depth()
         if not lp.cascades:
-            out.append(LightDepth(lp.index, lp.kind, debug_image(depth), depth, lp.near, lp.far))
+            image, shown = _picture(depth, lp.near, lp.far)
+            out.append(LightDepth(lp.index, lp.kind, image, depth, lp.near, lp.far,
+                                  shown=shown))
             continue
-        image = np.concatenate([debug_image(d) for d in depth], axis=1)
-        out.append(LightDepth(lp.index, "cascades", image, depth,
-                              min(c.near for c in lp.cascades), max(c.far for c in lp.cascades),
-                              [(float(c.near), float(c.far)) for c in lp.cascades]))
+        parts = [_picture(d, c.near, c.far) for d, c in zip(depth, lp.cascades, strict=True)]
+        drawn = [s for _, s in parts if s is not None]
+        out.append(LightDepth(lp.index, "cascades", np.concatenate([i for i, _ in parts], axis=1),
+                              depth, min(c.near for c in lp.cascades),
+                              max(c.far for c in lp.cascades),
+                              [(float(c.near), float(c.far)) for c in lp.cascades],
+                              (min(s[0] for s in drawn), max(s[1] for s in drawn))
+                              if drawn else None))
     return out
+
+
+def _picture(t: np.ndarray, near: float, far: float
+             ) -> tuple[np.ndarray, tuple[float, float] | None]:
+    """A map's debug picture and the world distances it is stretched over (None: nothing
+    drawn), from one pass of :func:`drawn_range` over the map."""
+    span = drawn_range(t)
+    shown = None if span is None else (float(near + span[0] * (far - near)),
+                                       float(near + span[1] * (far - near)))
+    return stretched_image(t, span), shown
 
 
 @dataclass(frozen=True, slots=True, eq=False)
