@@ -113,6 +113,7 @@ def test_rerun_skips_everything(batch):
     assert (out / "results.jsonl").read_text() == before
 
 
+@pytest.mark.one_platform
 def test_changed_inputs_are_rendered_again(tmp_path, models):
     entries = [{"id": "a", "scene": {"builtin": "demo"}, "params": SIZE},
                {"id": "b", "scene": str(models / "Duck.glb"), "params": SIZE}]
@@ -136,6 +137,7 @@ def test_manifest_errors_are_jobs(tmp_path):
     assert all(j.error is not None and j.error.code == "invalid_job" for j in jobs[1:])
 
 
+@pytest.mark.one_platform
 def test_sigkill_halfway_then_resume(tmp_path, models):
     """A batch killed with SIGKILL (driver and workers) resumes: the second run renders only the
     jobs without a record, and every job ends with exactly its one result."""
@@ -169,6 +171,7 @@ def test_sigkill_halfway_then_resume(tmp_path, models):
     assert not (out / ".partial").exists()
 
 
+@pytest.mark.one_platform
 def test_dead_worker_is_replaced_and_its_job_retried(tmp_path, models):
     """A worker killed in the middle of a job: a new one takes its place, the job is rendered on
     the second try and the batch goes on."""
@@ -192,6 +195,7 @@ def test_dead_worker_is_replaced_and_its_job_retried(tmp_path, models):
     assert len(retried) == 1 and retried[0]["worker"]["pid"] != killed[0]
 
 
+@pytest.mark.one_platform
 def test_hung_job_is_killed_retried_once_then_failed(tmp_path, software_gl):
     """Past ``timeout``, a job's worker is killed; the job is tried once more and then recorded
     as failed, and the jobs after it are rendered (3 s: a new worker's first job builds the demo
@@ -237,6 +241,7 @@ def test_cli(tmp_path):
     assert bad.returncode == 2 and "shadowmap: error:" in bad.stderr
 
 
+@pytest.mark.one_platform
 def test_renders_per_job_are_limited(tmp_path):
     """Views times light lists over ``max_job_renders`` is an error record, found before any
     variation is validated or rendered; the other jobs run."""
@@ -323,6 +328,7 @@ def test_library_does_not_import_batch():
         assert "shadowmap.batch" not in text and "from ..batch" not in text, path
 
 
+@pytest.mark.one_platform
 def test_scene_files_that_are_no_regular_files_or_too_large_are_error_records(tmp_path, models):
     """A FIFO would block the batch's reading of it forever and /dev/zero would fill memory:
     each is an error record before anything is read, as is a file over the limits'
@@ -349,6 +355,7 @@ def test_scene_files_that_are_no_regular_files_or_too_large_are_error_records(tm
     assert "over the 500000 this request may read" in rec["error"]["detail"]
 
 
+@pytest.mark.one_platform
 def test_manifest_bytes_a_text_reader_would_stop_at(tmp_path):
     """A byte order mark (as some editors write) and CRLF line ends are read; a line that is not
     UTF-8, or longer than ``max_line_bytes``, is an error record and the next lines are read;

@@ -18,7 +18,9 @@ ray = pytest.importorskip("ray", reason="the ray extra is not installed")
 from shadowmap.batch import render_many  # noqa: E402
 from shadowmap.batch.ray import RayBackend  # noqa: E402
 
-pytestmark = pytest.mark.gl
+# Ray's actors hold the same Renderer as the local pool's workers, which test_batch runs on
+# both platforms.
+pytestmark = [pytest.mark.gl, pytest.mark.one_platform]
 
 
 @pytest.fixture(scope="module")

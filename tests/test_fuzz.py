@@ -212,6 +212,7 @@ def test_fuzz_library_render(cases, renderer):
 
 
 @pytest.mark.gl
+@pytest.mark.one_platform
 def test_fuzz_mutated_models(renderer):
     """Random mutations of the real models (``fuzz_mutations.py``), loaded and rendered: a
     ShadowMapError other than a RequestError (the request is the same small one for all) or a
@@ -404,6 +405,7 @@ def _scaling_bases() -> dict[str, Any]:
 
 
 @pytest.mark.gl
+@pytest.mark.one_platform
 def test_fuzz_scaled_scenes(renderer):
     """Real models and test scenes scaled by 1e-7 to 1e9 and moved up to 1e13 units (some axes
     left at 0), some with one part moved 10 to 1e17 scene sizes from the rest (a box alone far
@@ -465,6 +467,7 @@ def test_fuzz_scaled_scenes(renderer):
 
 
 @pytest.mark.gl
+@pytest.mark.one_platform
 def test_fuzz_scale_invariance(renderer):
     """The scenes of :func:`test_fuzz_scaled_scenes` (scaled by 1e-7 to 1e9, moved up to 1e13
     units, a part moved 10 to 1e17 scene sizes away, their files' cameras with them) under a
