@@ -474,7 +474,8 @@ def test_fuzz_scale_invariance(renderer):
     light placed relative to them, rendered with the ray-traced reference beside the same
     scene at its own scale and place: the moved render's shadow agrees with its reference as
     well as the other's does (its IoU at most 0.05 lower, or at most one percentage point more
-    pixels misclassified), or it says why not (a warning the other has not). Float64 rounds a
+    pixels misclassified) at 64x48, or, where it does not, at four times that resolution, or
+    it says why not (a warning the other has not). Float64 rounds a
     camera or light placed far out, so the two pictures may differ; each is checked against
     the truth for its own inputs. A tiny Duck 1.8e8 units out was seen 1 % nearer or farther
     than it is, unsaid (shadow IoU 0.70 against 0.99 at the origin). One pixel more
@@ -517,44 +518,61 @@ def test_fuzz_scale_invariance(renderer):
         ground = rng.random() < 0.5
         label = (f"#{k} {name} x{scale:.3g} +{tuple(f'{o:.3g}' for o in offset)} moved {move}, "
                  f"{kind}, {shadows}, ground {ground}")
-        results = []
-        for s, o in ((1.0, (0.0, 0.0, 0.0)), (scale, offset)):
-            scene = build(name, s, o, move)
-            lo, hi = scene.bounds
-            centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
-            light: dict[str, Any] = {"type": kind, "direction": d.tolist()}
-            if kind != "directional":
-                position = centre - d * size * 10.0 ** power
-                light = {"type": kind, "position": position.tolist()}
-                if kind == "spot":
-                    light.update(target=centre.tolist(), outer_cone_deg=cone)
-            params = {**SMALL, "ground": ground, "lights": [light], "shadows": shadows,
-                      "outputs": ["visibility"], "reference": True}
-            try:
-                RenderParams.model_validate(params)
-            except ValueError:  # out of the request's range: its own refusal, tested elsewhere
+        # A SMALL frame evaluates about a hundred pixels, and the two pictures differ where
+        # float64 rounded the far camera: two PCF edge pixels more can be 5 % of the IoU (seed
+        # 9001's case 34: 0.949 against 1.000, and 0.978 against 0.973 at 256x192). A pair that
+        # disagrees is rendered again at four times the resolution, which tells a shifted edge
+        # from a lost shadow.
+        first: list[Any] = []
+        for frame in (SMALL, {"width": 4 * SMALL["width"], "height": 4 * SMALL["height"]}):
+            results = []
+            for s, o in ((1.0, (0.0, 0.0, 0.0)), (scale, offset)):
+                scene = build(name, s, o, move)
+                lo, hi = scene.bounds
+                centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+                light: dict[str, Any] = {"type": kind, "direction": d.tolist()}
+                if kind != "directional":
+                    position = centre - d * size * 10.0 ** power
+                    light = {"type": kind, "position": position.tolist()}
+                    if kind == "spot":
+                        light.update(target=centre.tolist(), outer_cone_deg=cone)
+                params = {**frame, "ground": ground, "lights": [light], "shadows": shadows,
+                          "outputs": ["visibility"], "reference": True}
+                try:
+                    RenderParams.model_validate(params)
+                except ValueError:  # out of the request's range: its own refusal, tested elsewhere
+                    break
+                results.append(_render_checked(renderer, lambda scene=scene: scene, params,
+                                               label, failures, outcomes))
+            if len(results) < 2 or any(r is None for r in results):
+                break  # refused, or a failure _render_checked recorded
+            if not first:
+                compared += 1
+                first = results
+            if _agrees_as_well(*results):
                 break
-            results.append(_render_checked(renderer, lambda scene=scene: scene, params, label,
-                                           failures, outcomes))
-        if len(results) < 2 or results[0] is None or results[1] is None:
-            continue
-        here, there = results
-        (a,), (b,) = here.metrics, there.metrics
-        compared += 1
-        # One pixel more is the finest difference a metric over few evaluated pixels can show
-        # (SMALL frames evaluate about a hundred): a shadow edge one pixel over is not a loss.
-        one_pixel = 100.0 / max(b["pixels"], 1)
-        if (b["iou"] >= a["iou"] - 0.05
-                or b["misclassified_pct"] <= a["misclassified_pct"] + max(1.0, one_pixel) + 1e-9):
-            continue
-        if set(there.warnings) - set(here.warnings):
-            continue
-        failures.append(f"{label}: shadow IoU {b['iou']:.3f} against the reference "
-                        f"({b['misclassified_pct']:.2f} % misclassified) where the scene at "
-                        f"its own scale has {a['iou']:.3f} ({a['misclassified_pct']:.2f} %), "
-                        "unsaid")
+        else:
+            (a,), (b,) = first[0].metrics, first[1].metrics
+            failures.append(f"{label}: shadow IoU {b['iou']:.3f} against the reference "
+                            f"({b['misclassified_pct']:.2f} % misclassified) where the scene "
+                            f"at its own scale has {a['iou']:.3f} "
+                            f"({a['misclassified_pct']:.2f} %), unsaid, at 4x the resolution too")
     assert compared >= INVARIANCE // 3, (compared, outcomes)
     assert not failures, f"{len(failures)} of {compared}:\n" + "\n".join(failures)
+
+
+def _agrees_as_well(here: Any, there: Any) -> bool:
+    """Whether the moved render ``there`` agrees with its reference as well as ``here``, the
+    scene at its own scale, does with its own (its IoU at most 0.05 lower, or at most one
+    percentage point or one pixel more misclassified), or says why not: a warning ``here`` has
+    not."""
+    (a,), (b,) = here.metrics, there.metrics
+    # One pixel more is the finest difference a metric over few evaluated pixels can show
+    # (SMALL frames evaluate about a hundred): a shadow edge one pixel over is not a loss.
+    one_pixel = 100.0 / max(b["pixels"], 1)
+    return bool(b["iou"] >= a["iou"] - 0.05
+                or b["misclassified_pct"] <= a["misclassified_pct"] + max(1.0, one_pixel) + 1e-9
+                or set(there.warnings) - set(here.warnings))
 
 
 def _render_checked(renderer: Any, scene: Any, params: dict, label: str, failures: list[str],
