@@ -764,7 +764,8 @@ class Supervisor:
         child = self._child
         assert child is not None and job.started is not None and job.deadline is not None
         job.task.before = {"read": job.read_seconds, "queue": job.started - job.submitted}
-        job.task.elapsed = time.perf_counter() - job.request_started
+        sent = time.perf_counter()
+        job.task.elapsed = sent - job.request_started
         try:
             child.conn.send(("render", job.task))
         except (OSError, ValueError):
@@ -801,14 +802,18 @@ class Supervisor:
                     f"(exit code {child.process.exitcode}) and is being restarted; try again",
                     headers=_retry_after(self.restart_seconds)))
             return
-        seconds = time.perf_counter() - job.started
+        now = time.perf_counter()
+        seconds = now - job.started
         if message[0] == "done":
+            reply: RenderReply = message[2]
+            reply.pipe = max(now - sent - reply.seconds, 0.0)
+            reply.answered = now
             with self._cond:
                 self.renders += 1
                 self.costs.observe(job.size, seconds)
             # Before answering, so that whoever sees the answer also sees the replacement.
             self._recycle_if_due(child)
-            self._resolve(job, result=message[2])
+            self._resolve(job, result=reply)
             return
         _, _, payload, fatal = message
         with self._cond:

@@ -144,6 +144,12 @@ class RenderReply:
         Time the worker spent on the task (parse, render, encode).
     cache_hit : bool
         Whether the parsed scene came from the worker's cache.
+    pipe : float
+        Set in the server process: seconds the task and this reply spent between the processes
+        (pickling, the pipe, the worker's wake-ups), the round trip less ``seconds``.
+    answered : float
+        Set in the server process: ``time.perf_counter()`` when the reply had crossed the pipe;
+        0 where no pipe was crossed.
     """
 
     body: bytes
@@ -151,6 +157,8 @@ class RenderReply:
     headers: dict[str, str]
     seconds: float
     cache_hit: bool
+    pipe: float = 0.0
+    answered: float = 0.0
 
 
 @dataclass(frozen=True)

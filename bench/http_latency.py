@@ -7,6 +7,12 @@ sequential requests alternate with the in-process renders (one each, in turn), s
 medians come from the same minutes of this noisy machine; the service's ``Server-Timing`` says
 where the rest of a request's time goes.
 
+Its ``pipe`` stage (the task and the answer between the server process and its render worker
+process) is set beside the bare cost of the same messages: a real ``RenderTask`` holding the model
+and a ``RenderReply`` holding a PNG of the response's size, sent through the same kind of pipe to
+a spawned process that answers ``started`` and ``done`` as the worker does, at once and after
+10 ms of work (a render's length, during which the server process waits blocked).
+
     python bench/http_latency.py [--quick] [--model Duck.glb] [--requests 40]
 """
 
@@ -181,6 +187,8 @@ def run(workers: int, data: bytes, name: str, n: int, clients: int, lib: Library
         for _ in range(2 * workers):  # warm every worker process
             post(client, server.url, data, name)
             raw.post()
+        body_bytes = len(client.post(server.url + "/render", files={"scene": (name, data)},
+                                     data={"params": json.dumps(PARAMS)}, timeout=120).content)
         latencies, raw_latencies, cached, parsed = [], [], [], []
         for i in range(n):
             # One of each in turn: the ratio compares like with like on a noisy machine.
@@ -208,7 +216,53 @@ def run(workers: int, data: bytes, name: str, n: int, clients: int, lib: Library
             "raw_p50": float(np.percentile(np.array(raw_latencies) * 1000, 50)),
             "library": float(np.median(cached) * 1000),
             "library_parsed": float(np.median(parsed) * 1000),
-            "stages": {k: float(np.median(v)) for k, v in stages.items()}}
+            "stages": {k: float(np.median(v)) for k, v in stages.items()},
+            "body_bytes": body_bytes}
+
+
+IPC_ROUNDS = 200
+IPC_WORK = 0.010  # seconds the echo process works between "started" and "done"
+
+
+def _ipc_echo(conn, reply, work: float) -> None:  # type: ignore[no-untyped-def]
+    """The worker's side of the pipe, without the render: "started", ``work`` seconds of busy
+    CPU, then "done" with ``reply``."""
+    while (message := conn.recv()) is not None:
+        conn.send(("started", message[1].job_id))
+        t = time.perf_counter()
+        while time.perf_counter() - t < work:
+            pass
+        conn.send(("done", message[1].job_id, reply))
+
+
+def ipc_round_trip(data: bytes, body_bytes: int, work: float) -> float:
+    """Median ms a task and its reply spend between two processes, less ``work``."""
+    import multiprocessing as mp
+
+    from shadowmap.app.worker import RenderReply, RenderTask
+
+    task = RenderTask(1, data, "glb", {}, RenderParams.model_validate(PARAMS), "image/png",
+                      ["color"], {"read": 0.001, "queue": 0.0002}, 0.001)
+    reply = RenderReply(os.urandom(body_bytes), "image/png", {"x-render-plan": "{}" * 400},
+                        work, True)
+    ctx = mp.get_context("spawn")
+    conn, child_end = ctx.Pipe(duplex=True)
+    proc = ctx.Process(target=_ipc_echo, args=(child_end, reply, work), daemon=True)
+    proc.start()
+    child_end.close()
+    times = []
+    try:
+        for k in range(IPC_ROUNDS + 10):
+            t = time.perf_counter()
+            conn.send(("render", task))
+            conn.recv()
+            conn.recv()
+            if k >= 10:
+                times.append(time.perf_counter() - t - work)
+    finally:
+        conn.send(None)
+        proc.join(10)
+    return float(np.median(times) * 1000)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -226,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                 for w in ((1,) if args.quick else (1, 2))]
     finally:
         lib.close()
+    body_bytes = int(rows[0]["body_bytes"])
+    ipc = {work: ipc_round_trip(data, body_bytes, work) for work in (0.0, IPC_WORK)}
     lines = [
         f"# HTTP latency: {args.model} with a ground plane, 640x480, default settings",
         "",
@@ -262,7 +318,13 @@ def main(argv: list[str] | None = None) -> int:
               "(transport, the framework outside the route, the event loop); httpx's p50 less "
               f"the plain client's: {rows[0]['p50'] - rows[0]['raw_p50']:.2f} (the client's own "
               f"work: building the multipart request, reading the response). Stages sum to "
-              f"{inside:.2f}."]
+              f"{inside:.2f}.",
+              "", f"The same messages between two processes alone (a {len(data):,}-byte "
+              f"model in the task, a {body_bytes:,}-byte body in the reply, the same kind of "
+              f"pipe; medians of {IPC_ROUNDS}): {ipc[0.0]:.2f} ms when the other process answers "
+              f"at once, {ipc[IPC_WORK]:.2f} ms when it works {IPC_WORK * 1000:.0f} ms first, "
+              "as a render does, while this one waits blocked (the `pipe` stage above: "
+              f"{st.get('pipe', float('nan')):.2f} ms)."]
     text = "\n".join(lines)
     print(text)
     if not args.quick:

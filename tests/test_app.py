@@ -316,8 +316,12 @@ def test_demo_without_anything(client):
     assert img.shape[2] == 3
     timing = server_timing(resp)
     for stage in ("read", "queue", "parse", "upload", "light", "camera", "readback", "encode",
-                  "total"):
+                  "pipe", "hop", "total"):
         assert stage in timing and timing[stage] >= 0, timing
+    # The stages follow one another: together they fit in the total (each rounded to 0.01 ms).
+    assert sum(v for k, v in timing.items() if k != "total") <= timing["total"] + 0.01 * len(
+        timing), timing
+    assert list(timing)[-3:] == ["pipe", "hop", "total"]
     plan = json.loads(resp.headers["x-render-plan"])
     assert plan["light_passes"] == 1 and plan["outputs"] == ["color"]
 

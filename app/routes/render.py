@@ -26,7 +26,9 @@ _STRING = {"type": "string"}
 #: gives no breakdown).
 SERVER_TIMING = {
     "Server-Timing": {"description": "milliseconds per stage: read, queue, parse, upload, plan, "
-                      "light, camera, readback, encode, total (errors: total only)",
+                      "light, camera, readback, reference, encode, pipe (the task and its "
+                      "answer between the server's processes), hop (the answer's way to the "
+                      "event loop), total (errors: total only)",
                       "required": True, "schema": _STRING,
                       "example": "read;dur=0.40, queue;dur=0.02, total;dur=41.70"},
 }
@@ -149,8 +151,15 @@ async def render(request: Request, inp: RenderInputDep, worker: WorkerDep) -> Re
     headers = dict(reply.headers)
     timing = headers.get("server-timing")
     if timing is not None:
-        # The worker's total ends before its answer crossed the pipe; this one is the request's.
-        total = f"total;dur={(time.perf_counter() - inp.started) * 1000.0:.2f}"
+        # The worker's total ends before its answer crossed the pipe; this one is the request's,
+        # after the two stages the worker cannot see: `pipe`, the task and the answer between
+        # the processes, and `hop`, the answer's way from the supervisor's thread to this
+        # coroutine on the event loop.
+        now = time.perf_counter()
+        total = f"total;dur={(now - inp.started) * 1000.0:.2f}"
+        if reply.answered:
+            total = (f"pipe;dur={reply.pipe * 1000.0:.2f}, "
+                     f"hop;dur={(now - reply.answered) * 1000.0:.2f}, " + total)
         headers["server-timing"] = _TOTAL.sub(lambda m: m.group(1) + total, timing)
     return Response(reply.body, media_type=reply.media_type, headers=headers)
 
