@@ -658,14 +658,104 @@ class RenderParams(_Model):
         return self
 
 
+class RepeatedKey(ValueError):
+    """A JSON object of a request names a key twice (:func:`load_json`).
+
+    JSON leaves the meaning open (RFC 8259: most parsers keep the last value, some refuse), and
+    keeping one silently renders something the sender did not all ask for: two ``lights``
+    lists, say, of which the first would be dropped.
+
+    Attributes
+    ----------
+    path : tuple of str or int
+        Where the repeated key is: object keys and list indices from the top, the key last.
+    """
+
+    def __init__(self, path: tuple[str | int, ...]) -> None:
+        self.path = path
+        where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in path[:-1])
+        super().__init__(f"the key {path[-1]!r} is given twice in one object"
+                         + (f" (at {where.lstrip('.')})" if where else ""))
+
+
+class _Repeated(dict[str, Any]):
+    """A JSON object that named a key more than once, and the first such key."""
+
+    repeated: str
+
+
+def _json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) == len(pairs):
+        return out
+    marked = _Repeated(out)
+    seen: set[str] = set()
+    for key, _ in pairs:
+        if key in seen:
+            marked.repeated = key
+            break
+        seen.add(key)
+    return marked
+
+
+def _repeated_path(value: Any) -> tuple[str | int, ...] | None:
+    """The path of the first repeated key under ``value`` (depth first), or None."""
+    stack: list[tuple[Any, tuple[str | int, ...]]] = [(value, ())]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, _Repeated):
+            return (*path, node.repeated)
+        if isinstance(node, dict):
+            stack.extend((v, (*path, k)) for k, v in reversed(node.items()))
+        elif isinstance(node, list):
+            stack.extend((v, (*path, i)) for i, v in reversed(list(enumerate(node))))
+    return None
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not allowed (numbers must be finite)")
+
+
+def load_json(text: str | bytes) -> Any:
+    """A request's JSON text (params, a batch manifest's line) as Python values: ``json.loads``
+    without ``NaN`` and ``Infinity`` (not JSON) and without a key given twice in one object.
+
+    Raises
+    ------
+    RepeatedKey
+        An object names a key twice.
+    ValueError
+        Not JSON (``json.JSONDecodeError``), ``NaN`` or ``Infinity``, an integer of more digits
+        than Python converts.
+    RecursionError
+        Nested deeper than the parser goes.
+    """
+    import json
+
+    value = json.loads(text, object_pairs_hook=_json_object, parse_constant=_no_constant)
+    path = _repeated_path(value)
+    if path is not None:
+        raise RepeatedKey(path)
+    return value
+
+
 def parse_json(text: str | bytes) -> RenderParams:
     """Validate request JSON strictly: JSON types as they are (no ``0`` for a boolean, no
-    ``"1"`` for a number, no ``false`` for a number), every light with its ``type``.
+    ``"1"`` for a number, no ``false`` for a number), every light with its ``type``, no key
+    given twice in one object (:class:`RepeatedKey`, reported at its path).
 
     Raises
     ------
     pydantic.ValidationError
     """
+    try:
+        load_json(text)
+    except RepeatedKey as exc:
+        raise ValidationError.from_exception_data("RenderParams", [InitErrorDetails(
+            type=PydanticCustomError("repeated_key", str(exc)), loc=exc.path,
+            input=exc.path[-1])]) from None
+    except (ValueError, RecursionError):
+        pass  # not JSON, or no finite number: the model's own error says where
     return RenderParams.model_validate_json(text, strict=True)
 
 

@@ -127,6 +127,7 @@ def _render(args: argparse.Namespace) -> int:
     params: dict = {}
     if args.params:
         from .renderer.limits import MAX_PARAMS_BYTES
+        from .renderer.params import RepeatedKey, load_json
 
         try:
             # At most one byte past the limit: a FIFO (--params <(...)) is read as it comes,
@@ -136,9 +137,11 @@ def _render(args: argparse.Namespace) -> int:
             if len(text) > MAX_PARAMS_BYTES:
                 return _fail(f"{args.params} is over {MAX_PARAMS_BYTES} bytes: a request's "
                              "params are a few kB")
-            params = json.loads(text.decode("utf-8-sig"), parse_constant=_no_constants)
+            params = load_json(text.decode("utf-8-sig"))
         except OSError as exc:
             return _fail(f"cannot read {args.params}: {exc.strerror}")
+        except RepeatedKey as exc:
+            return _fail(f"{args.params}: {exc}")
         except ValueError as exc:
             return _fail(f"{args.params} is not valid JSON: {exc}")
         if not isinstance(params, dict):
@@ -426,10 +429,6 @@ def _join_signed_values(argv: list[str]) -> list[str]:
         out.append(arg)
         i += 1
     return out
-
-
-def _no_constants(name: str) -> float:
-    raise ValueError(f"{name} is not allowed (numbers must be finite)")
 
 
 def _jsonable(value: object) -> object:

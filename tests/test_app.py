@@ -671,7 +671,23 @@ BAD_PARAMS = {
     "light without a type": ('{"lights": [{"direction": [0, -1, 0]}]}', "invalid_params"),
     "zero for a boolean": ('{"ground": 0}', "invalid_params"),
     "false for a number": ('{"specular": false}', "invalid_params"),
+    "key given twice": ('{"width": 64, "width": 100000}', "invalid_params"),
 }
+
+
+@pytest.mark.parametrize("text, field, msg", [
+    ('{"width": 64, "width": 100000}', "/width", "the key 'width' is given twice in one object"),
+    ('{"lights": [{"type": "directional", "direction": [0, -1, 0]}], "lights": []}', "/lights",
+     "the key 'lights' is given twice"),
+    ('{"lights": [{"type": "point", "position": [0, 3, 0], "position": [9, 9, 9]}]}',
+     "/lights/0/position", "the key 'position' is given twice in one object (at lights[0])"),
+    ('{"shadows": {"fit": "scene", "fit": "view"}}', "/shadows/fit", "(at shadows)"),
+])
+def test_a_key_given_twice_is_refused_at_its_place(client, text, field, msg):
+    """JSON leaves an object's repeated key open (most parsers keep the last value): refused,
+    naming where, rather than rendering what the sender half asked for."""
+    body = assert_error(post_params(client, text), 422, "invalid_params")
+    assert body["field"] == field and msg in body["errors"][0]["msg"], body
 
 
 @pytest.mark.parametrize("case", list(BAD_PARAMS))

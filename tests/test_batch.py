@@ -130,11 +130,15 @@ def test_manifest_errors_are_jobs(tmp_path):
     path = tmp_path / "m.jsonl"
     path.write_text('{"id": "x", "scene": {"builtin": "demo"}}\nnot json\n[1]\n\n# comment\n'
                     '{"id": "x", "scene": {"builtin": "demo"}}\n{"id": "../up", "scene": "a.glb"}\n'
-                    '{"scene": {"builtin": "moon"}}\n')
+                    '{"scene": {"builtin": "moon"}}\n'
+                    '{"id": "y", "scene": {"builtin": "demo"}, "params": {"width": 8, "width": 9}}\n')
     jobs = load_manifest(path)
-    assert [j.id for j in jobs] == ["x", "line-2", "line-3", "x.line-6", "line-7", "line-8"]
+    assert [j.id for j in jobs] == ["x", "line-2", "line-3", "x.line-6", "line-7", "line-8",
+                                    "line-9"]
     assert jobs[0].error is None
     assert all(j.error is not None and j.error.code == "invalid_job" for j in jobs[1:])
+    assert jobs[-1].error is not None and jobs[-1].error.detail == (
+        "line 9: the key 'width' is given twice in one object (at params)")
 
 
 @pytest.mark.one_platform

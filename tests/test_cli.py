@@ -81,6 +81,8 @@ def test_help_documents_the_json(models):
         pytest.param('{"lights": [{"direction": [0, 0, 0]}]}', ["{scene}", "--params", "{params}"],
                      "zero length", marks=pytest.mark.gl),
         ('{"width": NaN}', ["{scene}", "--params", "{params}"], "NaN"),
+        ('{"shadows": {"fit": "scene", "fit": "view"}}', ["{scene}", "--params", "{params}"],
+         "the key 'fit' is given twice in one object (at shadows)"),
         (b"\xff\xfe{}", ["{scene}", "--params", "{params}"], "can't decode byte 0xff"),
         # Read up to one byte past the limit: /dev/zero used to be read until memory ran out.
         (None, ["{scene}", "--params", "/dev/zero"], "/dev/zero is over 65536 bytes"),

@@ -44,6 +44,7 @@ from shadowmap.renderer import Limits, RenderParams, ShadowMapError
 from shadowmap.renderer.cache import content_key
 from shadowmap.renderer.errors import SceneError
 from shadowmap.renderer.limits import check_request
+from shadowmap.renderer.params import RepeatedKey, load_json
 from shadowmap.renderer.scene import gltf_resources, read_regular_file
 
 from .errors import JobError, error_of
@@ -365,7 +366,10 @@ def load_manifest(path: str | Path, limits: Limits | None = None,
             if not text or text.startswith("#"):
                 continue
             try:
-                entry = json.loads(text, parse_constant=_no_constants)
+                entry = load_json(text)
+            except RepeatedKey as exc:
+                bad("invalid_job", f"line {n}: {exc}")
+                continue
             except (ValueError, RecursionError) as exc:
                 why = "it nests too deep" if isinstance(exc, RecursionError) else str(exc)
                 bad("invalid_job", f"line {n} is not JSON: {why}")
@@ -387,10 +391,6 @@ def _lines(f: BinaryIO, max_bytes: int) -> Iterator[bytes | None]:
             yield None
             continue
         yield line
-
-
-def _no_constants(name: str) -> float:
-    raise ValueError(f"{name} is not allowed (numbers must be finite)")
 
 
 def _unique_ids(jobs: list[Job]) -> list[Job]:
