@@ -131,7 +131,8 @@ def test_manifest_errors_are_jobs(tmp_path):
     path.write_text('{"id": "x", "scene": {"builtin": "demo"}}\nnot json\n[1]\n\n# comment\n'
                     '{"id": "x", "scene": {"builtin": "demo"}}\n{"id": "../up", "scene": "a.glb"}\n'
                     '{"scene": {"builtin": "moon"}}\n'
-                    '{"id": "y", "scene": {"builtin": "demo"}, "params": {"width": 8, "width": 9}}\n')
+                    '{"id": "y", "scene": {"builtin": "demo"},'
+                    ' "params": {"width": 8, "width": 9}}\n')
     jobs = load_manifest(path)
     assert [j.id for j in jobs] == ["x", "line-2", "line-3", "x.line-6", "line-7", "line-8",
                                     "line-9"]
