@@ -26,12 +26,17 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from multiprocessing.connection import Connection
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench._common import results_dir
 from shadowmap.renderer import Renderer, RenderParams, load_scene
+
+if TYPE_CHECKING:
+    from shadowmap.app.worker import RenderReply
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = {"width": 640, "height": 480, "ground": True}
@@ -224,7 +229,7 @@ IPC_ROUNDS = 200
 IPC_WORK = 0.010  # seconds the echo process works between "started" and "done"
 
 
-def _ipc_echo(conn, reply, work: float) -> None:  # type: ignore[no-untyped-def]
+def _ipc_echo(conn: Connection, reply: RenderReply, work: float) -> None:
     """The worker's side of the pipe, without the render: "started", ``work`` seconds of busy
     CPU, then "done" with ``reply``."""
     while (message := conn.recv()) is not None:

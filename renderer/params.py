@@ -17,6 +17,7 @@ HTTP service) must name the ``type``.
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Annotated, Any, Literal
 
@@ -684,10 +685,8 @@ class _Repeated(dict[str, Any]):
     repeated: str
 
 
-def _json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    out = dict(pairs)
-    if len(out) == len(pairs):
-        return out
+def _marked(out: dict[str, Any], pairs: list[tuple[str, Any]]) -> _Repeated:
+    """``out``, built from ``pairs`` that name a key more than once, marked with the first."""
     marked = _Repeated(out)
     seen: set[str] = set()
     for key, _ in pairs:
@@ -730,11 +729,20 @@ def load_json(text: str | bytes) -> Any:
     RecursionError
         Nested deeper than the parser goes.
     """
-    import json
+    repeated = False
 
-    value = json.loads(text, object_pairs_hook=_json_object, parse_constant=_no_constant)
-    path = _repeated_path(value)
-    if path is not None:
+    def json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        nonlocal repeated
+        out = dict(pairs)
+        if len(out) == len(pairs):
+            return out
+        repeated = True
+        return _marked(out, pairs)
+
+    value = json.loads(text, object_pairs_hook=json_object, parse_constant=_no_constant)
+    if repeated:  # only then is the tree walked, for the first repeated key's path
+        path = _repeated_path(value)
+        assert path is not None
         raise RepeatedKey(path)
     return value
 
