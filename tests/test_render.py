@@ -136,6 +136,53 @@ def test_outputs_are_only_what_was_asked_for(renderer, demo):
     assert r.color is None and r.depth.shape == (480, 640)
 
 
+def test_readback_reuses_a_frame_only_once_nothing_holds_it(renderer, demo):
+    import weakref
+
+    lights = [{"type": "directional", "direction": [-0.6, -1.0, 0.25]}]
+    lit = RenderParams(outputs=["color", "visibility", "depth"], lights=lights)
+    dark = RenderParams(outputs=["color", "visibility", "depth"],
+                        lights=[{**lights[0], "intensity": 0.05}])
+    held = renderer.render(demo, lit)
+    kept = {k: np.array(getattr(held, k)) for k in ("color", "visibility", "depth")}
+    # Frames rendered while `held` lives (one more than the arrays kept per shape) must not be
+    # written into its arrays.
+    for _ in range(3):
+        other = renderer.render(demo, dark)
+        assert not np.array_equal(other.color, kept["color"])
+    for k, v in kept.items():
+        np.testing.assert_array_equal(getattr(held, k), v)
+    # Once let go, the next frame is read into the same array (the allocation is what it saves).
+    del held, other
+    first = renderer.render(demo, dark)
+    base = weakref.ref(first.color.base)
+    del first
+    again = renderer.render(demo, lit)
+    assert again.color.base is base()
+    np.testing.assert_array_equal(again.color, kept["color"])
+    np.testing.assert_array_equal(again.visibility, kept["visibility"])
+
+
+def test_readback_buffers_bound_what_they_keep():
+    from shadowmap.renderer.gl.resources import ReadbackBuffers
+
+    pool = ReadbackBuffers(per_shape=2)
+    a = pool.take((4, 5, 3), np.uint8)
+    b = pool.take((4, 5, 3), np.uint8)
+    assert a is not b  # `a` is held here
+    c = pool.take((4, 5, 3), np.uint8)  # both held: a third, the oldest let go
+    assert c is not a and c is not b and pool.nbytes == 2 * 60
+    del b
+    assert pool.take((4, 5, 3), np.uint8).base is None  # a kept one, not a view
+    view = c[::-1]
+    del c
+    d = pool.take((4, 5, 3), np.uint8)
+    assert not np.shares_memory(d, view)  # a view still refers to its array
+    assert pool.take((4, 5), np.float32).dtype == np.float32
+    pool.clear()
+    assert pool.nbytes == 0
+
+
 def test_visibility_is_nan_where_no_geometry_and_depth_matches_reference(renderer, models):
     scene = load_model(models, "Duck.glb", ground=False)
     params = RenderParams(outputs=["visibility", "depth"])

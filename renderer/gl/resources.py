@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import itertools
+import sys
 from collections import OrderedDict
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -809,27 +810,31 @@ class Framebuffer:
         GL.glViewport(0, 0, self.width, self.height)
 
     def read_color(self, index: int, fmt: int, typ: int, channels: int,
-                   dtype: npt.DTypeLike) -> np.ndarray:
+                   dtype: npt.DTypeLike, buffers: ReadbackBuffers | None = None) -> np.ndarray:
         """Read one colour attachment; returns (H, W, channels), row 0 at the top.
 
         The result is a row-flipped view (negative row stride) of the array GL wrote into: GL's
         row 0 is the bottom, and a contiguous top-down copy would cost several times the read
-        itself (the PNG writer takes the rows as they are).
+        itself (the PNG writer takes the rows as they are). That array comes from ``buffers``
+        when given (see :class:`ReadbackBuffers`), else it is a new one.
         """
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0 + index)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
         # Into our own array: PyOpenGL's own return value is one more copy, as bytes.
-        arr = np.empty((self.height, self.width, channels), dtype)
+        shape = (self.height, self.width, channels)
+        arr = buffers.take(shape, dtype) if buffers is not None else np.empty(shape, dtype)
         GL.glReadPixels(0, 0, self.width, self.height, fmt, typ, arr)
         return arr[::-1]
 
-    def read_depth(self) -> np.ndarray:
+    def read_depth(self, buffers: ReadbackBuffers | None = None) -> np.ndarray:
         """Read the depth attachment as float32 (H, W), row 0 at the top (a flipped view, as
         :meth:`read_color`)."""
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
-        arr = np.empty((self.height, self.width), np.float32)
+        shape = (self.height, self.width)
+        arr = (buffers.take(shape, np.float32) if buffers is not None
+               else np.empty(shape, np.float32))
         GL.glReadPixels(0, 0, self.width, self.height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, arr)
         return arr[::-1]
 
@@ -846,6 +851,62 @@ class Framebuffer:
         if self.fbo:
             GL.glDeleteFramebuffers(1, [self.fbo])
             self.fbo = 0
+
+
+def _references(kept: list[np.ndarray], i: int) -> int:
+    """References to ``kept[i]``, counted the same way for :data:`_REFERENCES_WHEN_FREE`."""
+    return sys.getrefcount(kept[i])
+
+
+#: What :func:`_references` says of an array only its list holds (the interpreter's own
+#: references during the call included, whatever they are in this version of Python).
+_REFERENCES_WHEN_FREE = _references([np.empty(0)], 0)
+
+
+class ReadbackBuffers:
+    """Arrays that ``glReadPixels`` writes frames into, each used again once nothing else holds
+    it.
+
+    A new array of a frame's size may be memory the process has not touched since the
+    allocator last gave such a block back to the system, and then the first write to each of
+    its pages is a page fault: whether it is depends on what else the process allocated and
+    freed. In the service's worker it is, every request: 225 faults for a 640x480 RGB frame,
+    and the readback took twice as long (``bench/readback.py``). An array here is taken again
+    only when no result, view or copy refers to it any more (its reference count says so), so a
+    frame a caller still holds is never overwritten; two per shape serve a loop that keeps the
+    previous frame while it renders the next.
+
+    Parameters
+    ----------
+    per_shape : int
+        Arrays kept per (shape, dtype); a take that finds all of them held makes a new one and
+        lets the oldest go.
+    """
+
+    def __init__(self, per_shape: int = 2) -> None:
+        self.per_shape = per_shape
+        self._arrays: dict[tuple[tuple[int, ...], np.dtype], list[np.ndarray]] = {}
+
+    def take(self, shape: tuple[int, ...], dtype: npt.DTypeLike) -> np.ndarray:
+        """An array of this shape and dtype that nothing outside this object refers to."""
+        kept = self._arrays.setdefault((shape, np.dtype(dtype)), [])
+        for i in range(len(kept)):
+            if _references(kept, i) == _REFERENCES_WHEN_FREE:
+                return kept[i]
+        arr = np.empty(shape, dtype)
+        kept.append(arr)
+        if len(kept) > self.per_shape:
+            del kept[0]
+        return arr
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays kept."""
+        return sum(a.nbytes for kept in self._arrays.values() for a in kept)
+
+    def clear(self) -> None:
+        """Let every array go (those still held elsewhere live on there)."""
+        self._arrays.clear()
 
 
 def _sampling(target: int) -> None:

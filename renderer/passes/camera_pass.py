@@ -17,7 +17,7 @@ from .. import encodings
 from ..camera import Camera
 from ..errors import RenderError
 from ..gl.programs import Program, ProgramCache
-from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene
+from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene, ReadbackBuffers
 from ..limits import MAX_CASCADES
 from ..params import RenderParams
 from ..plan import LightShadow, RenderPlan
@@ -62,6 +62,8 @@ class CameraPass:
         self.programs = programs
         self.fbo: Framebuffer | None = None
         self._fbo_key: tuple | None = None
+        # The arrays frames are read back into, used again once the caller lets a result go.
+        self.readback = ReadbackBuffers()
         self._white = 0
         self.variants: set[tuple] = set()  # defines of the programs drawn with, per frame
         # The last frame's state, by (plan, request, maps' plans, visibility targets): a
@@ -85,6 +87,7 @@ class CameraPass:
             if self.fbo is not None:
                 self.fbo.release()
                 self.fbo = None
+            self.readback.clear()  # sized for the old frame
             colors = [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)]
             colors += [(GL.GL_RGBA32F, GL.GL_RGBA, GL.GL_FLOAT)] * vis_targets
             self.fbo = Framebuffer(width, height, colors, (GL.GL_DEPTH_COMPONENT32F, True))
@@ -330,18 +333,20 @@ class CameraPass:
             # the rows stay whole for the PNG writer. A flipped view, not a copy (see
             # Framebuffer.read_color).
             if alpha:
-                out.color = fb.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8)
+                out.color = fb.read_color(0, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, 4, np.uint8,
+                                          self.readback)
             else:
-                out.color = fb.read_color(0, GL.GL_RGB, GL.GL_UNSIGNED_BYTE, 3, np.uint8)
+                out.color = fb.read_color(0, GL.GL_RGB, GL.GL_UNSIGNED_BYTE, 3, np.uint8,
+                                          self.readback)
         if "visibility" in outputs and n_lights > 0:
             parts = [
-                fb.read_color(1 + i, GL.GL_RGBA, GL.GL_FLOAT, 4, np.float32)
+                fb.read_color(1 + i, GL.GL_RGBA, GL.GL_FLOAT, 4, np.float32, self.readback)
                 for i in range((n_lights + 3) // 4)
             ]
             vis = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=2)
             out.visibility = vis[..., :n_lights]
         if "depth" in outputs:
-            d = fb.read_depth().astype(np.float64)
+            d = fb.read_depth(self.readback).astype(np.float64)
             n, f = camera.znear, camera.zfar
             if camera.orthographic:  # window depth linear in z: (z - n) / (f - n), or 1 - that
                 z = n + ((1.0 - d) if self.reversed_z else d) * (f - n)
@@ -357,6 +362,7 @@ class CameraPass:
 
     def release(self) -> None:
         self._frame = None
+        self.readback.clear()
         if self.fbo is not None:
             self.fbo.release()
             self.fbo = None
