@@ -10,6 +10,7 @@ from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from shadowmap.hosts import MAX_SECONDS
+from shadowmap.renderer.allocator import KEEP_FREED_BYTES
 from shadowmap.renderer.limits import MAX_LIGHTS, Limits
 from shadowmap.renderer.params import MAX_IMAGE_SIDE
 
@@ -85,6 +86,11 @@ class Settings(BaseSettings):
     max_worker_memory_bytes : int
         Resident memory of the worker process above which it is replaced after its render (like
         Celery's ``max_memory_per_child``; 0: no cap).
+    keep_freed_bytes : int
+        Freed memory the worker process keeps for its next renders instead of giving it back
+        to the system, where each reuse would be page faults again
+        (:func:`shadowmap.renderer.allocator.keep_freed_memory`; glibc only; 0: the C
+        library's defaults). Counted in its resident memory.
     upload_timeout : float
         Seconds a client may take to send the request body; 408 and the connection closed after.
     send_timeout : float
@@ -133,6 +139,7 @@ class Settings(BaseSettings):
                                   allow_inf_nan=False)
     max_renders_per_worker: int = Field(default=500, ge=0)
     max_worker_memory_bytes: int = Field(default=1536 * 2**20, ge=0)
+    keep_freed_bytes: int = Field(default=KEEP_FREED_BYTES, ge=0, le=2**31 - 1)
     upload_timeout: float = Field(default=30.0, gt=0.0, le=MAX_SECONDS,
                                   allow_inf_nan=False)
     send_timeout: float = Field(default=30.0, gt=0.0, le=MAX_SECONDS, allow_inf_nan=False)

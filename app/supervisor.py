@@ -337,7 +337,8 @@ class Supervisor:
             cache_entries=settings.scene_cache_entries,
             map_cache_bytes=settings.light_map_cache_bytes, warmup_scene=warmup_scene,
             warmup_params=dict(DEMO_PARAMS),
-            log_level=logging.getLogger("shadowmap").getEffectiveLevel())
+            log_level=logging.getLogger("shadowmap").getEffectiveLevel(),
+            keep_freed_bytes=settings.keep_freed_bytes)
         self._cond = threading.Condition()
         self._queue: deque[Job] = deque()
         self._running: Job | None = None

@@ -37,6 +37,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from shadowmap.renderer import Renderer, RenderError, RenderParams, ShadowMapError
+from shadowmap.renderer.allocator import KEEP_FREED_BYTES, keep_freed_memory
 from shadowmap.renderer.limits import Limits
 
 log = logging.getLogger("shadowmap.app.worker")
@@ -65,6 +66,9 @@ class WorkerConfig:
     warmup_params : dict
         RenderParams fields of the warm-up render.
     log_level : int
+    keep_freed_bytes : int
+        ``keep_freed_bytes`` of the settings
+        (:func:`~shadowmap.renderer.allocator.keep_freed_memory`).
     """
 
     limits: Limits
@@ -74,6 +78,7 @@ class WorkerConfig:
     warmup_scene: bytes | None = None
     warmup_params: dict = field(default_factory=dict)
     log_level: int = logging.INFO
+    keep_freed_bytes: int = KEEP_FREED_BYTES
 
 
 @dataclass(frozen=True)
@@ -239,6 +244,8 @@ def worker_main(conn: Connection, config: WorkerConfig) -> None:
     # kills it if need be), so the worker does not die half-way through its own answer.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _setup_logging(config.log_level)
+    # This process only renders: freed frames stay for the next request's (no page faults).
+    keep_freed_memory(config.keep_freed_bytes)
 
     def new_renderer() -> Renderer:
         return Renderer(limits=config.limits, cache_bytes=config.cache_bytes,

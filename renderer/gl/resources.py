@@ -870,11 +870,13 @@ class ReadbackBuffers:
     A new array of a frame's size may be memory the process has not touched since the
     allocator last gave such a block back to the system, and then the first write to each of
     its pages is a page fault: whether it is depends on what else the process allocated and
-    freed. In the service's worker it is, every request: 225 faults for a 640x480 RGB frame,
-    and the readback took twice as long (``bench/readback.py``). An array here is taken again
+    freed. In a service worker it was, at 1920x1080: about 1,000 faults per request, and the
+    read-back took 1.5 times as long (``bench/page_faults.py``). An array here is taken again
     only when no result, view or copy refers to it any more (its reference count says so), so a
     frame a caller still holds is never overwritten; two per shape serve a loop that keeps the
-    previous frame while it renders the next.
+    previous frame while it renders the next. The other arrays of a render (the depth's and
+    the encoders' steps) are the C allocator's to keep: see
+    :func:`shadowmap.renderer.allocator.keep_freed_memory`.
 
     Parameters
     ----------

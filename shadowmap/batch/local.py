@@ -25,6 +25,7 @@ from typing import Any
 
 from shadowmap.hosts import check_seconds, check_workers
 from shadowmap.renderer import Limits
+from shadowmap.renderer.allocator import keep_freed_memory
 
 from .manifest import SceneBytes, SceneRef
 from .worker import JobOutcome, Task
@@ -58,6 +59,7 @@ def _worker_main(conn: Connection, config: PoolConfig) -> None:
     """A worker process: create the GL context, then render tasks until the pipe closes."""
     if config.threads and "LP_NUM_THREADS" not in os.environ:
         os.environ["LP_NUM_THREADS"] = str(config.threads)
+    keep_freed_memory()  # this process only renders (see shadowmap.renderer.allocator)
     from .worker import JobRunner
 
     try:

@@ -28,6 +28,7 @@ from typing import Any
 
 from shadowmap.hosts import check_address, check_seconds
 from shadowmap.renderer import Limits
+from shadowmap.renderer.allocator import keep_freed_memory
 
 from .manifest import SceneBytes, SceneRef
 from .worker import JobOutcome, Task
@@ -49,6 +50,7 @@ class _RenderActor:
             # Ray hands out physical GPU indices; EGL enumerates the same devices.
             os.environ["SHADOWMAP_EGL_DEVICE"] = str(int(gpus[0]))
         os.environ.setdefault("LP_NUM_THREADS", str(max(1, threads)))
+        keep_freed_memory()  # this process only renders (see shadowmap.renderer.allocator)
         from .worker import JobRunner
 
         self.runner = JobRunner(platform, limits)
