@@ -164,6 +164,8 @@ def test_readback_reuses_a_frame_only_once_nothing_holds_it(renderer, demo):
 
 
 def test_readback_buffers_bound_what_they_keep():
+    import weakref
+
     from shadowmap.renderer.gl.resources import ReadbackBuffers
 
     pool = ReadbackBuffers(per_shape=2)
@@ -181,6 +183,12 @@ def test_readback_buffers_bound_what_they_keep():
     assert pool.take((4, 5), np.float32).dtype == np.float32
     pool.clear()
     assert pool.nbytes == 0
+    small = ReadbackBuffers(per_shape=2, max_bytes=100)
+    big = small.take((10, 11), np.uint8)  # 110 bytes: handed out, not kept
+    assert small.nbytes == 0
+    del big
+    first = weakref.ref(small.take((5, 5), np.uint8))  # 25 bytes: kept
+    assert small.take((5, 5), np.uint8) is first() and small.nbytes == 25
 
 
 def test_visibility_is_nan_where_no_geometry_and_depth_matches_reference(renderer, models):

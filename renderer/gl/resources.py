@@ -853,6 +853,11 @@ class Framebuffer:
             self.fbo = 0
 
 
+#: Bytes of read-back arrays a camera pass keeps for its next frames
+#: (:class:`ReadbackBuffers`): a 1920x1080 frame's colour, visibility and depth, twice over.
+READBACK_KEEP_BYTES = 96 * 2**20
+
+
 def _references(kept: list[np.ndarray], i: int) -> int:
     """References to ``kept[i]``, counted the same way for :data:`_REFERENCES_WHEN_FREE`."""
     return sys.getrefcount(kept[i])
@@ -883,10 +888,15 @@ class ReadbackBuffers:
     per_shape : int
         Arrays kept per (shape, dtype); a take that finds all of them held makes a new one and
         lets the oldest go.
+    max_bytes : int
+        Most bytes kept in all: a new array that would take the total past it is handed out
+        and not kept (a 4096x4096 frame's visibility is 256 MiB a target, which a long-lived
+        process should not hold between renders).
     """
 
-    def __init__(self, per_shape: int = 2) -> None:
+    def __init__(self, per_shape: int = 2, max_bytes: int = READBACK_KEEP_BYTES) -> None:
         self.per_shape = per_shape
+        self.max_bytes = max_bytes
         self._arrays: dict[tuple[tuple[int, ...], np.dtype], list[np.ndarray]] = {}
 
     def take(self, shape: tuple[int, ...], dtype: npt.DTypeLike) -> np.ndarray:
@@ -896,9 +906,10 @@ class ReadbackBuffers:
             if _references(kept, i) == _REFERENCES_WHEN_FREE:
                 return kept[i]
         arr = np.empty(shape, dtype)
-        kept.append(arr)
-        if len(kept) > self.per_shape:
+        if len(kept) >= self.per_shape:
             del kept[0]
+        if self.per_shape > 0 and self.nbytes + arr.nbytes <= self.max_bytes:
+            kept.append(arr)
         return arr
 
     @property
