@@ -11,13 +11,20 @@ their ratio, and how many pixels of the colour output differ (the pictures of a 
 be invisible should not).
 
 The other version is ``git archive REV`` unpacked into a temporary folder and imported from there
-(``shadowmap`` laid out as the installed namespace is); the working tree is the current one.
+(``shadowmap`` laid out as the installed namespace is), run from that folder; the working tree
+is the current one, or with ``--against REV2`` another unpacked commit (a change measured after
+the fact: REV its parent, REV2 the change). Each process reports where it imported
+``shadowmap.renderer`` and ``bench/_common.py`` from, and a process that did not import its own
+version's stops the run. (Until this check, the earlier commit's process imported the working
+tree's renderer through the editable install: every comparison before it set the working tree
+against itself.) ``--keep-freed`` makes both processes keep freed memory, as the service's and
+the batch's render workers do.
 
-Writes ``bench/results/ab_commits_<REV's short hash>.{md,csv}``: one pair of files per base
-commit, so that a comparison a note quotes is not replaced by the next one.
+Writes ``bench/results/ab_commits_<REV's short hash>[_<REV2's>].{md,csv}``: one pair of files
+per comparison, so that a comparison a note quotes is not replaced by the next one.
 
-Run: ``PYTHONPATH=. .venv/bin/python bench/ab_commits.py REV [--scenes Duck,room_point]
-[--repeats N] [--params JSON]``
+Run: ``PYTHONPATH=. .venv/bin/python bench/ab_commits.py REV [--against REV2]
+[--scenes Duck,room_point] [--repeats N] [--params JSON] [--keep-freed]``
 """
 
 from __future__ import annotations
@@ -43,8 +50,13 @@ TAG = "@@ab "
 #: The child: renders on request, answers one tagged JSON line per request. It imports only what
 #: every version of ``bench/_common.py`` offers.
 CHILD = r'''
-import json, sys, time
+import ctypes, json, sys, time
 import numpy as np
+
+if sys.argv[2] == "keep":  # glibc's trim and mmap thresholds, as keep_freed_memory() sets them
+    mallopt = ctypes.CDLL(None).mallopt
+    mallopt(-1, 64 << 20)
+    mallopt(-3, 32 << 20)
 from bench import _common as C
 from shadowmap.renderer import Renderer
 
@@ -66,7 +78,9 @@ def reply(obj):
     sys.stdout.write(TAG + json.dumps(obj) + "\n")
     sys.stdout.flush()
 
-reply({"ready": True, "info": dict(r.info)})
+import shadowmap.renderer
+reply({"ready": True, "info": dict(r.info), "renderer": shadowmap.renderer.__file__,
+       "bench": C.__file__})
 for line in sys.stdin:
     req = json.loads(line)
     try:
@@ -108,17 +122,30 @@ def unpack(rev: str, into: Path) -> str:
 class Version:
     """One version's render process."""
 
-    def __init__(self, label: str, root: Path, pythonpath: list[Path], extra: dict) -> None:
+    def __init__(self, label: str, root: Path, cwd: Path, pythonpath: list[Path], extra: dict,
+                 keep_freed: bool = False) -> None:
+        """``root``: the version's source tree, whose ``renderer/`` and ``bench/`` the process
+        must import (checked: a wrong path would compare a version with itself); ``cwd``: the
+        folder the process runs in, which Python puts first on its path."""
         self.label = label
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(str(p) for p in pythonpath))
         env.setdefault("PYOPENGL_PLATFORM", "egl")
         env["SHADOWMAP_MODELS"] = str(C.models_dir())  # the unpacked tree has no shared/ beside it
-        # Python puts the script's folder first on sys.path; ``-c`` puts the working folder
-        # there instead, which is the version's own root.
-        self.proc = subprocess.Popen([sys.executable, "-c", CHILD, json.dumps(extra)], cwd=root,
-                                     env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     text=True, bufsize=1)
-        self.info: dict[str, str] = self.read()["info"]
+        # ``-c`` puts the working folder first on sys.path: an unpacked commit runs in its
+        # package folder, whose ``shadowmap`` is the whole namespace (the tree's own
+        # ``shadowmap/`` lacks ``renderer``, which this project's editable install would then
+        # supply from the working tree).
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", CHILD, json.dumps(extra), "keep" if keep_freed else "-"],
+            cwd=cwd, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            bufsize=1)
+        ready = self.read()
+        self.info: dict[str, str] = ready["info"]
+        for what in ("renderer", "bench"):
+            path = Path(ready[what]).resolve()
+            if not path.is_relative_to(root.resolve()):
+                self.close()
+                raise RuntimeError(f"{label}: imported its {what} from {path}, not from {root}")
 
     def read(self) -> dict[str, Any]:
         assert self.proc.stdout is not None
@@ -159,6 +186,12 @@ def compare(a: Version, b: Version, scene: str, repeats: int, warmup: int = 3
     return out
 
 
+def _unpacked(label: str, into: Path, extra: dict, keep_freed: bool) -> Version:
+    """The render process of a commit :func:`unpack` laid out in ``into``."""
+    return Version(label, into / "tree", into / "pkg", [into / "pkg", into / "tree"], extra,
+                   keep_freed)
+
+
 def _pixels_differing(a: Version, b: Version, scene: str, folder: Path) -> int:
     """Pixels of ``scene``'s colour output that differ between the versions (any channel; -1
     when the images' shapes differ)."""
@@ -171,9 +204,10 @@ def _pixels_differing(a: Version, b: Version, scene: str, folder: Path) -> int:
     return int((np.abs(ia - ib).max(axis=-1) > 0).sum()) if ia.shape == ib.shape else -1
 
 
-def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict) -> None:
+def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict,
+        keep_freed: bool = False, against: str | None = None) -> None:
     t_start = time.perf_counter()
-    stages = ("camera", "light", "wall")
+    stages = ("camera", "light", "readback", "wall")
     # per scene, version and stage: the median of each round
     medians: dict[str, dict[str, dict[str, list[float]]]] = {}
     differ: dict[str, int] = {}
@@ -181,21 +215,26 @@ def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict) -> 
     with tempfile.TemporaryDirectory(prefix="ab_commits_") as tmp:
         root = Path(tmp)
         commit = unpack(rev, root / "rev")
-        here = C.code_state()
+        if against is not None:
+            other = unpack(against, root / "against")
+            here, b_label = f"commit {other}", other
+        else:
+            here, b_label = C.code_state(), "working tree"
         bar = C.Progress(rounds * len(scenes), "ab_commits")
         try:
             for k in range(rounds):
                 # Fresh processes each round: a process's timings can settle at a few per cent
                 # (sometimes tens of per cent on one scene) from another's of the same code
                 # (where its buffers happen to lie), so one pair of processes is one sample.
-                base = Version(commit, root / "rev" / "tree",
-                               [root / "rev" / "pkg", root / "rev" / "tree"], extra)
-                work = Version("working tree", C.ROOT, [C.ROOT], extra)
+                base = _unpacked(commit, root / "rev", extra, keep_freed)
+                work = (_unpacked(b_label, root / "against", extra, keep_freed)
+                        if against is not None
+                        else Version(b_label, C.ROOT, C.ROOT, [C.ROOT], extra, keep_freed))
                 info = work.info
                 try:
                     for name in scenes:
                         t = compare(base, work, name, repeats)
-                        for label, key in ((commit, "a"), ("working tree", "b")):
+                        for label, key in ((commit, "a"), (b_label, "b")):
                             for stage in stages:
                                 v = t[label].get(stage, [])
                                 medians.setdefault(name, {}).setdefault(key, {}).setdefault(
@@ -214,55 +253,66 @@ def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict) -> 
         cells = {f"{stage}_{key}": C.median(m[key][stage]) for key in "ab" for stage in stages}
         # The ratio is taken within each round (the pair ran side by side, through the same
         # spells of a busy machine), then the median over the rounds.
-        for stage in ("camera", "wall"):
+        for stage in ("camera", "readback", "wall"):
             cells[f"{stage}_ratio"] = C.median([b / a for a, b in zip(m["a"][stage], m["b"][stage],
                                                                       strict=True)])
         rows.append([name, *(C.fmt(cells[f"{st}_{v}"], 3) for st in stages for v in "ab"),
-                     *(C.fmt(cells[f"{st}_ratio"], 3) for st in ("camera", "wall")),
+                     *(C.fmt(cells[f"{st}_ratio"], 3) for st in ("camera", "readback", "wall")),
                      str(differ[name])])
         csv_rows.append({"scene": name, **{k: round(v, 4) for k, v in cells.items()},
                          "pixels_differing": differ[name]})
     machine = f"{info.get('platform')}, {info.get('renderer')}, GL {info.get('version')}"
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
-    headers = ["scene", f"camera ms, {commit}", "camera ms, working tree",
-               f"light ms, {commit}", "light ms, working tree", f"wall ms, {commit}",
-               "wall ms, working tree", "camera, working / base", "wall, working / base",
-               "pixels differing"]
+    b = b_label
+    headers = ["scene", f"camera ms, {commit}", f"camera ms, {b}", f"light ms, {commit}",
+               f"light ms, {b}", f"readback ms, {commit}", f"readback ms, {b}",
+               f"wall ms, {commit}", f"wall ms, {b}", f"camera, {b} / {commit}",
+               f"readback, {b} / {commit}", f"wall, {b} / {commit}", "pixels differing"]
     ratios = [r["camera_ratio"] for r in csv_rows if r["camera_ratio"] > 0]
-    summary = (f"- Camera pass, working tree over {commit}: geometric mean "
+    summary = (f"- Camera pass, {b} over {commit}: geometric mean "
                f"{math.exp(sum(map(math.log, ratios)) / len(ratios)):.3f} over {len(ratios)} "
                f"scenes; pixels differing in {sum(r['pixels_differing'] != 0 for r in csv_rows)}"
                f" of them.") if ratios else "- No scene rendered."
     md = "\n".join([
-        f"# The same renders by {commit} and by the working tree ({here})", "",
+        f"# The same renders by {commit} and by "
+        + (f"{b}" if against is not None else f"the working tree ({here})"), "",
         f"640x480, default settings{', with ' + json.dumps(extra) if extra else ''}; each version "
         f"in a process of its own, one render each in turn (the order swapped every repeat), "
         f"{repeats} repeats after 3 warm-ups; the median of each of {rounds} rounds, each with "
         f"a fresh pair of processes, and the median of those; each ratio is taken within each "
         f"round, then their median. Stages: the renderer's own timings "
         f"(`RenderResult.timings`); the light pass is drawn once and cached, as a repeated "
-        f"request's is. Pixels differing: of the colour output, any channel.", "",
+        f"request's is. Pixels differing: of the colour output, any channel."
+        + (" Both processes keep freed memory for their next renders (glibc's trim and mmap "
+           "thresholds, as `keep_freed_memory()` sets them in the service's and the batch's "
+           "workers)." if keep_freed else ""), "",
         C.markdown_table(headers, rows), "", summary, "",
         f"Machine: {machine}; {os.cpu_count()} CPU cores (load average {load} at the end); "
         f"Python {sys.version.split()[0]}. Run time {time.perf_counter() - t_start:.0f} s.", ""])
     out_dir = C.results_dir()
-    (out_dir / f"ab_commits_{commit}.md").write_text(md)
-    C.write_csv(out_dir / f"ab_commits_{commit}.csv", csv_rows)
+    stem = f"ab_commits_{commit}" + (f"_{b}" if against is not None else "")
+    (out_dir / f"{stem}.md").write_text(md)
+    C.write_csv(out_dir / f"{stem}.csv", csv_rows)
     print(md)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("rev", help="the commit to compare the working tree against")
+    ap.add_argument("--against", default=None,
+                    help="another commit to compare with REV instead of the working tree")
     ap.add_argument("--scenes", default=",".join(
         [n.rsplit(".", 1)[0] for n in C.MODEL_NAMES] + list(C.STRESS_SCENES)),
         help="comma-separated: model names without extension, stress scene names")
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--rounds", type=int, default=9, help="fresh process pairs, one after another")
     ap.add_argument("--params", default="{}", help="RenderParams fields added to each scene's")
+    ap.add_argument("--keep-freed", action="store_true",
+                    help="both processes keep freed memory, as the service's and the batch's "
+                    "render workers do (shadowmap.renderer.allocator)")
     args = ap.parse_args()
     run(args.rev, [s for s in args.scenes.split(",") if s], args.repeats, args.rounds,
-        json.loads(args.params))
+        json.loads(args.params), args.keep_freed, args.against)
 
 
 if __name__ == "__main__":
