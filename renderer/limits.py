@@ -19,7 +19,6 @@ Each raises :class:`~shadowmap.renderer.errors.LimitError` naming the exceeded s
 
 from __future__ import annotations
 
-import math
 import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
@@ -219,17 +218,17 @@ def map_texel_bytes(encoding: str, depth_bits: int | str = "auto") -> int:
 LIGHT_DEPTH_TEXEL_BYTES = 6
 LIGHT_DEPTH_FACE_BYTES = {"depth": 4, "encoded": 40}
 #: Camera framebuffer bytes per pixel: the RGBA8 colour and the DEPTH_COMPONENT32F depth
-#: (``passes/camera_pass.py``); plus one RGBA32F visibility target per four lights.
+#: (``passes/camera_pass.py``); plus the visibility targets' float32 channels
+#: (:func:`visibility_target_channels`).
 CAMERA_PIXEL_BYTES = 4 + 4
-VISIBILITY_TARGET_BYTES = 16
+VISIBILITY_CHANNEL_BYTES = 4
 #: Read-back bytes per pixel of each output: colour as RGBA8 and its RGB copy and PNG (12);
 #: depth as float32, three float64 steps of the linearisation and the float32 result (32);
-#: visibility: the RGBA32F read of each target (16) and the float32 slice of each light (4).
-#: Measured at 2048² with 4 point lights and 2048² maps: colour only 464 MB in all (estimate
-#: 465 MiB), with depth 564 MB (593), with visibility 644 MB (657).
+#: visibility: the read of each target's channels (4 each) and the float32 slice of each light
+#: (4). Measured at 2048² with 4 point lights and 2048² maps: colour only 464 MB in all
+#: (estimate 465 MiB), with depth 564 MB (593), with visibility 644 MB (657).
 COLOR_READBACK_BYTES = 12
 DEPTH_READBACK_BYTES = 32
-VISIBILITY_READBACK_TARGET_BYTES = 16
 VISIBILITY_READBACK_LIGHT_BYTES = 4
 #: The ray-traced reference: float64 triangles, normals and embree's float32 copy per
 #: triangle, and per pixel the rays and hits of the camera and of each light.
@@ -285,6 +284,18 @@ class RequestBytes:
 
 def _mib(n: int) -> str:
     return f"{n / MIB:,.0f} MiB" if n >= 10 * MIB else f"{n / MIB:,.1f} MiB"
+
+
+def visibility_target_channels(n_lights: int) -> list[int]:
+    """Float32 channels of each of the camera pass's visibility targets for ``n_lights``
+    lights, four lights a target: a target holds what its lights need, one (R32F), two (RG32F)
+    or four (RGBA32F: three take four, as RGB32F need not be colour-renderable). One light's
+    visibility is then a quarter of the memory to write, read back and copy."""
+    out = []
+    for first in range(0, n_lights, 4):
+        c = min(4, n_lights - first)
+        out.append(4 if c == 3 else c)
+    return out
 
 
 def request_lights(params: RenderParams, scene: Scene | None = None) -> list[tuple[str, bool]]:
@@ -352,15 +363,16 @@ def request_bytes(params: RenderParams, lights: Sequence[tuple[str, bool]], map_
         map_readback = texels * LIGHT_DEPTH_TEXEL_BYTES + map_size * map_size * face
     pixels = params.width * params.height
     n_lights = len(lights)
-    targets = math.ceil(n_lights / 4) if "visibility" in params.outputs and n_lights else 0
-    framebuffer = pixels * (CAMERA_PIXEL_BYTES + targets * VISIBILITY_TARGET_BYTES)
+    channels = (sum(visibility_target_channels(n_lights)) if "visibility" in params.outputs
+                else 0)
+    framebuffer = pixels * (CAMERA_PIXEL_BYTES + channels * VISIBILITY_CHANNEL_BYTES)
     readback = 0
     if "color" in params.outputs:
         readback += pixels * COLOR_READBACK_BYTES
     if "depth" in params.outputs:
         readback += pixels * DEPTH_READBACK_BYTES
-    if targets:
-        readback += pixels * (targets * VISIBILITY_READBACK_TARGET_BYTES
+    if channels:
+        readback += pixels * (channels * VISIBILITY_CHANNEL_BYTES
                               + n_lights * VISIBILITY_READBACK_LIGHT_BYTES)
     scene_bytes = scene_upload_bytes(scene) if scene is not None else 0
     reference = 0

@@ -104,3 +104,34 @@ def test_a_degenerate_map_gives_finite_factors():
     plane, depth = map2d_plane_factors(plan, 0.01, 1.5)
     assert np.isfinite(plane).all() and np.isfinite(depth).all()
     assert np.isfinite(cube_plane_factors(plan, 0.01, 1.5)).all()
+
+
+@pytest.mark.parametrize("orthographic", [False, True])
+@pytest.mark.parametrize("reversed_z", [False, True])
+@pytest.mark.parametrize("near, far", [(0.1, 100.0), (1e-3, 1e7), (3.3, 3.4)])
+def test_linear_depth_is_the_plain_formula(orthographic, reversed_z, near, far):
+    """The in-place linearisation gives, bit for bit, the plain formulas of each depth mode."""
+    from types import SimpleNamespace
+
+    from shadowmap.renderer.passes.camera_pass import linear_depth
+
+    window = np.random.default_rng(7).random((48, 64)).astype(np.float32)
+    window[:4] = 0.0
+    window[4:8] = 1.0
+    d = window.astype(np.float64)
+    n, f = near, far
+    if orthographic:
+        z = n + ((1.0 - d) if reversed_z else d) * (f - n)
+        nothing = d <= 0.0 if reversed_z else d >= 1.0
+    elif reversed_z:
+        z = n * f / (d * (f - n) + n)
+        nothing = d <= 0.0
+    else:
+        z = 2 * n * f / ((f + n) - (2 * d - 1) * (f - n))
+        nothing = d >= 1.0
+    plain = np.where(nothing, np.nan, z).astype(np.float32)
+    camera = SimpleNamespace(znear=near, zfar=far, orthographic=orthographic)
+    got = linear_depth(window, camera, reversed_z)  # type: ignore[arg-type]
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, plain)
+    assert np.isnan(got[:4]).all() != np.isnan(got[4:8]).all()  # one end is "nothing"

@@ -492,7 +492,8 @@ def test_request_bytes_counts_faces_cascades_encodings_and_outputs():
     assert total(lights=sun * 8).maps == 8 * 1024**2 * 4
     assert one.framebuffer == 100 * 100 * 8 and one.map_readback == 0
     vis = total(lights=spot * 5, outputs=["visibility"])
-    assert vis.framebuffer == 100 * 100 * (8 + 2 * 16)  # two RGBA32F targets for 5 lights
+    assert vis.framebuffer == 100 * 100 * (8 + 16 + 4)  # RGBA32F and R32F targets for 5 lights
+    assert total(lights=spot * 7, outputs=["visibility"]).framebuffer == 100 * 100 * (8 + 2 * 16)
     every = total(lights=spot, outputs=["color", "depth", "visibility", "light_depth"])
     assert every.readback > one.readback and every.map_readback > 0
     assert every.total == sum((every.maps, every.map_readback, every.framebuffer,
@@ -684,3 +685,13 @@ def test_limits_are_whole_numbers_from_1(fields, message):
         Limits(**fields)
     assert Limits(max_pixels=np.int64(100)).max_pixels == 100  # numpy integers are taken
     assert type(Limits(max_pixels=np.int64(100)).max_pixels) is int
+
+
+@pytest.mark.parametrize("n, channels", [
+    (0, []), (1, [1]), (2, [2]), (3, [4]), (4, [4]), (5, [4, 1]), (6, [4, 2]), (7, [4, 4]),
+    (8, [4, 4]),
+])
+def test_visibility_targets_hold_what_their_lights_need(n, channels):
+    from shadowmap.renderer.limits import visibility_target_channels
+
+    assert visibility_target_channels(n) == channels

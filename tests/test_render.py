@@ -128,6 +128,23 @@ def test_several_lights_have_one_map_and_one_visibility_each(renderer, demo):
         assert m.iou >= 0.95, m
 
 
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 6])
+def test_each_lights_visibility_is_its_own_whatever_the_target_layout(renderer, demo, n):
+    """Visibility targets hold what their lights need (one, two or four channels, four lights
+    a target): light i of an n-light render reads as it does rendered alone."""
+    lights = [{"type": "directional", "direction": [-0.6 + 0.25 * i, -1.0, 0.25 - 0.1 * i],
+               "intensity": 0.3} for i in range(n)]
+    both = renderer.render(demo, RenderParams(camera=DEMO_CAMERA, lights=lights,
+                                              outputs=["visibility"]))
+    assert both.visibility.shape == (480, 640, n) and both.visibility.dtype == np.float32
+    for i, light in enumerate(lights):
+        alone = renderer.render(demo, RenderParams(camera=DEMO_CAMERA, lights=[light],
+                                                   outputs=["visibility"]))
+        np.testing.assert_array_equal(both.visibility[..., i], alone.visibility[..., 0])
+        lit = np.nanmean(alone.visibility[..., 0])
+        assert 0.05 < lit < 0.999, (i, lit)  # shadow somewhere, light elsewhere
+
+
 def test_outputs_are_only_what_was_asked_for(renderer, demo):
     r = renderer.render(demo, RenderParams(outputs=["color"]))
     assert r.color.shape == (480, 640, 3) and r.color.dtype == np.uint8

@@ -693,7 +693,8 @@ class GpuScene:
 
 
 #: Bytes per texel of the internal formats framebuffers use.
-_TEXEL_BYTES = {GL.GL_RGBA8: 4, GL.GL_RGBA32F: 16, GL.GL_DEPTH_COMPONENT32F: 4,
+_TEXEL_BYTES = {GL.GL_RGBA8: 4, GL.GL_RGBA32F: 16, GL.GL_RG32F: 8, GL.GL_R32F: 4,
+                GL.GL_DEPTH_COMPONENT32F: 4,
                 GL.GL_DEPTH_COMPONENT24: 4, GL.GL_DEPTH_COMPONENT16: 2}
 
 

@@ -18,7 +18,7 @@ from ..camera import Camera
 from ..errors import RenderError
 from ..gl.programs import Program, ProgramCache
 from ..gl.resources import Framebuffer, GpuPrimitive, GpuScene, ReadbackBuffers
-from ..limits import MAX_CASCADES
+from ..limits import MAX_CASCADES, visibility_target_channels
 from ..params import RenderParams
 from ..plan import LightShadow, RenderPlan
 from ..plan import shadow_region as SR
@@ -55,6 +55,60 @@ class CameraOutputs:
     depth: np.ndarray | None = None
 
 
+#: Visibility target formats by channels, (internal format, read-back format): see
+#: :func:`~shadowmap.renderer.limits.visibility_target_channels`. The shader writes a vec4 per
+#: target; a narrower target keeps its first channels.
+_VIS_FORMATS = {1: (GL.GL_R32F, GL.GL_RED), 2: (GL.GL_RG32F, GL.GL_RG),
+                4: (GL.GL_RGBA32F, GL.GL_RGBA)}
+
+
+
+def linear_depth(window: np.ndarray, camera: Camera, reversed_z: bool) -> np.ndarray:
+    """Camera depth (distance along the view axis) of each pixel from its window depth.
+
+    Worked in float64 in one array, in place, then float32; NaN where nothing was drawn (the
+    depth still the cleared value: 0 with reversed depth, 1 without). At 640x480 this takes
+    half the time of the plain formulas with a new array per step, for the same bits.
+
+    Parameters
+    ----------
+    window : ndarray, shape (H, W), float32
+        The depth buffer as read.
+    camera : Camera
+    reversed_z : bool
+        Whether the frame was drawn with reversed depth (``CameraPass.reversed_z``).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+    """
+    n, f = camera.znear, camera.zfar
+    z = window.astype(np.float64)
+    if camera.orthographic:  # window depth linear in z: (z - n) / (f - n), or 1 - that
+        if reversed_z:
+            np.subtract(1.0, z, out=z)
+        z *= f - n
+        z += n
+    elif reversed_z:  # window depth n (f - z) / ((f - n) z): 1 at z = n, 0 at f
+        z *= f - n
+        z += n
+        np.divide(n * f, z, out=z)
+    else:  # z = 2 n f / ((f + n) - (2 d - 1) (f - n))
+        z *= 2
+        z -= 1
+        z *= f - n
+        np.subtract(f + n, z, out=z)
+        np.divide(2 * n * f, z, out=z)
+    out = z.astype(np.float32)
+    # The window depth's distance from the cleared value, divided by itself: exactly 1 where
+    # something was drawn and NaN (0 / 0) where nothing was, one multiplication that leaves the
+    # depth's bits as they are (a masked assignment over a large background costs as much as
+    # the whole linearisation).
+    gap = window if reversed_z else np.subtract(np.float32(1.0), window)
+    with np.errstate(invalid="ignore"):
+        out *= gap / gap
+    return out
+
 class CameraPass:
     """Owns the camera framebuffer (re-created when the size or outputs change)."""
 
@@ -81,15 +135,15 @@ class CameraPass:
             self._clip_control = _clip_control()
         return self._clip_control is not None
 
-    def _framebuffer(self, width: int, height: int, vis_targets: int) -> Framebuffer:
-        key = (width, height, vis_targets)
+    def _framebuffer(self, width: int, height: int, vis_layout: tuple[int, ...]) -> Framebuffer:
+        key = (width, height, vis_layout)
         if self._fbo_key != key:
             if self.fbo is not None:
                 self.fbo.release()
                 self.fbo = None
             self.readback.clear()  # sized for the old frame
             colors = [(GL.GL_RGBA8, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)]
-            colors += [(GL.GL_RGBA32F, GL.GL_RGBA, GL.GL_FLOAT)] * vis_targets
+            colors += [(_VIS_FORMATS[c][0], _VIS_FORMATS[c][1], GL.GL_FLOAT) for c in vis_layout]
             self.fbo = Framebuffer(width, height, colors, (GL.GL_DEPTH_COMPONENT32F, True))
             self._fbo_key = key
         assert self.fbo is not None
@@ -117,8 +171,9 @@ class CameraPass:
         cam = plan.camera
         n_lights = len(plan.lights)
         want_vis = "visibility" in params.outputs and n_lights > 0
-        vis_targets = (n_lights + 3) // 4 if want_vis else 0
-        fb = self._framebuffer(cam.width, cam.height, vis_targets)
+        vis_layout = tuple(visibility_target_channels(n_lights)) if want_vis else ()
+        vis_targets = len(vis_layout)
+        fb = self._framebuffer(cam.width, cam.height, vis_layout)
         fb.bind()
         bg = np.asarray(params.background, np.float32)
         GL.glClearBufferfv(GL.GL_COLOR, 0, bg)
@@ -340,24 +395,14 @@ class CameraPass:
                                           self.readback)
         if "visibility" in outputs and n_lights > 0:
             parts = [
-                fb.read_color(1 + i, GL.GL_RGBA, GL.GL_FLOAT, 4, np.float32, self.readback)
-                for i in range((n_lights + 3) // 4)
+                fb.read_color(1 + i, _VIS_FORMATS[c][1], GL.GL_FLOAT, c, np.float32,
+                              self.readback)
+                for i, c in enumerate(visibility_target_channels(n_lights))
             ]
             vis = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=2)
             out.visibility = vis[..., :n_lights]
         if "depth" in outputs:
-            d = fb.read_depth(self.readback).astype(np.float64)
-            n, f = camera.znear, camera.zfar
-            if camera.orthographic:  # window depth linear in z: (z - n) / (f - n), or 1 - that
-                z = n + ((1.0 - d) if self.reversed_z else d) * (f - n)
-                nothing = d <= 0.0 if self.reversed_z else d >= 1.0
-            elif self.reversed_z:  # window depth n (f - z) / ((f - n) z): 1 at z = n, 0 at f
-                z = n * f / (d * (f - n) + n)
-                nothing = d <= 0.0
-            else:
-                z = 2 * n * f / ((f + n) - (2 * d - 1) * (f - n))
-                nothing = d >= 1.0
-            out.depth = np.where(nothing, np.nan, z).astype(np.float32)
+            out.depth = linear_depth(fb.read_depth(self.readback), camera, self.reversed_z)
         return out
 
     def release(self) -> None:
