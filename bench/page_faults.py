@@ -34,7 +34,8 @@ from __future__ import annotations
 import multiprocessing as mp
 import resource
 import time
-from multiprocessing.connection import Connection
+from multiprocessing.connection import Connection, wait
+from multiprocessing.process import BaseProcess
 from types import SimpleNamespace
 
 from bench import _common as C  # before anything that imports PyOpenGL: selects the platform
@@ -95,6 +96,13 @@ def _arm(conn: Connection, arm: str, path: str, width: int, height: int) -> None
             conn.send((time.perf_counter() - t, _faults() - f0, stages))
 
 
+def _recv(conn: Connection, proc: BaseProcess, arm: str) -> object:
+    """The arm's next answer; an error naming the arm if its process ended instead."""
+    if conn not in wait([conn, proc.sentinel]) and not conn.poll():
+        raise RuntimeError(f"the {arm!r} process ended (exit status {proc.exitcode})")
+    return conn.recv()
+
+
 def _measure(path: str, width: int, height: int,
              repeats: int) -> tuple[dict[str, dict[str, float]], str]:
     """Median wall s, faults and stages of each arm's call, the arms' processes in turn (each
@@ -107,11 +115,11 @@ def _measure(path: str, width: int, height: int,
             conns[arm], child = ctx.Pipe()
             procs[arm] = ctx.Process(target=_arm, args=(child, arm, path, width, height))
             procs[arm].start()
-            footer = conns[arm].recv()
+            footer = str(_recv(conns[arm], procs[arm], arm))
         for k in range(repeats + 2):
             for arm in ARMS[k % len(ARMS):] + ARMS[:k % len(ARMS)]:
                 conns[arm].send(True)
-                wall, faults, stages = conns[arm].recv()
+                wall, faults, stages = _recv(conns[arm], procs[arm], arm)  # type: ignore[misc]
                 if k < 2:
                     continue
                 s = samples[arm]
@@ -122,7 +130,8 @@ def _measure(path: str, width: int, height: int,
                         s.setdefault(name, []).append(stages[name])
     finally:
         for arm, proc in procs.items():
-            conns[arm].send(False)
+            if proc.is_alive():
+                conns[arm].send(False)
             proc.join(30)
     return {a: {k: C.median(v) for k, v in s.items()} for a, s in samples.items()}, footer
 

@@ -5,8 +5,8 @@ float64 steps of the depth and visibility images), and lets them go. With glibc'
 freed block of that size soon goes back to the system (unmapped, or trimmed off the heap's top
 once more than about twice the largest recent block is free there), and the next render's
 array of the same size is fresh memory again: every first write to one of its pages is a page
-fault. A batch worker writing a 640x480 view's colour, visibility and depth took 2,000 to 3,300
-faults per view that way, and 1.7 times as long as without them (``bench/page_faults.py``).
+fault. A batch worker writing a 640x480 view's colour, visibility and depth took about 2,300
+faults per view that way, and 1.5 times as long as without them (``bench/page_faults.py``).
 
 :func:`keep_freed_memory` tells glibc to keep up to a bound of freed memory for the next
 allocations instead. It changes the whole process, so the library never calls it on its own:

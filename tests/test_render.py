@@ -206,6 +206,8 @@ def test_readback_buffers_bound_what_they_keep():
     del big
     first = weakref.ref(small.take((5, 5), np.uint8))  # 25 bytes: kept
     assert small.take((5, 5), np.uint8) is first() and small.nbytes == 25
+    none = ReadbackBuffers(per_shape=0)  # keeps nothing: a new array every time
+    assert none.take((2, 2), np.uint8) is not none.take((2, 2), np.uint8) and none.nbytes == 0
 
 
 def test_visibility_is_nan_where_no_geometry_and_depth_matches_reference(renderer, models):

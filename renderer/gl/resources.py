@@ -907,9 +907,11 @@ class ReadbackBuffers:
             if _references(kept, i) == _REFERENCES_WHEN_FREE:
                 return kept[i]
         arr = np.empty(shape, dtype)
+        if self.per_shape <= 0:
+            return arr
         if len(kept) >= self.per_shape:
             del kept[0]
-        if self.per_shape > 0 and self.nbytes + arr.nbytes <= self.max_bytes:
+        if self.nbytes + arr.nbytes <= self.max_bytes:
             kept.append(arr)
         return arr
 
