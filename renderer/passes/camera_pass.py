@@ -62,7 +62,6 @@ _VIS_FORMATS = {1: (GL.GL_R32F, GL.GL_RED), 2: (GL.GL_RG32F, GL.GL_RG),
                 4: (GL.GL_RGBA32F, GL.GL_RGBA)}
 
 
-
 def linear_depth(window: np.ndarray, camera: Camera, reversed_z: bool) -> np.ndarray:
     """Camera depth (distance along the view axis) of each pixel from its window depth.
 
@@ -108,6 +107,7 @@ def linear_depth(window: np.ndarray, camera: Camera, reversed_z: bool) -> np.nda
     with np.errstate(invalid="ignore"):
         out *= gap / gap
     return out
+
 
 class CameraPass:
     """Owns the camera framebuffer (re-created when the size or outputs change)."""
