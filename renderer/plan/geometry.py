@@ -158,12 +158,30 @@ def pose_from_direction(
     un = np.linalg.norm(up)
     if un <= 0 or abs(np.dot(up / un, z)) > 0.999:
         up = np.eye(3)[int(np.argmin(np.abs(z)))]
-    x = np.cross(up, z)
+    x = cross3(up, z)
     x /= np.linalg.norm(x)
-    y = np.cross(z, x)
+    y = cross3(z, x)
     pose = np.eye(4)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, position
     return pose
+
+
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two 3-vectors, bit for bit (the same products and differences, in the
+    same order), in a tenth of its time: a plan builds several poses per request, and
+    ``np.cross`` spends tens of microseconds on its general case.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (3,), float64
+    """
+    a0, a1, a2 = np.asarray(a, np.float64).tolist()
+    b0, b1, b2 = np.asarray(b, np.float64).tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 # --------------------------------------------------------------------------------------------
@@ -185,12 +203,18 @@ def box_corners(bounds: np.ndarray) -> np.ndarray:
         Corner ``i`` takes x from bit 2 of ``i``, y from bit 1, z from bit 0 (0 min, 1 max).
     """
     b = np.asarray(bounds, np.float64)
-    idx = np.array([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)])
     if b.ndim == 2:
-        return b[idx, [0, 1, 2]]
+        return b[_CORNER_BITS, _AXES]
     # Fancy indexing lays the result out axis by axis; in row order every later product and
     # reduction over the corners runs several times faster.
-    return np.ascontiguousarray(b[:, idx, [0, 1, 2]])
+    return np.ascontiguousarray(b[:, _CORNER_BITS, _AXES])
+
+
+# Corner i of a box: (min or max) per axis from the bits of i (box_corners), built once.
+_CORNER_BITS = np.array([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)], np.intp)
+_CORNER_BITS.flags.writeable = False
+_AXES = np.arange(3)
+_AXES.flags.writeable = False
 
 
 def corner_min(a: np.ndarray) -> np.ndarray:
@@ -532,7 +556,7 @@ def cube_face_view(position: np.ndarray, face: int) -> np.ndarray:
     pose = np.eye(4)
     z = -np.array(fwd, np.float64)
     y = np.array(up, np.float64)
-    x = np.cross(y, z)
+    x = cross3(y, z)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, position
     return np.linalg.inv(pose)
 
