@@ -109,6 +109,21 @@ class BenchScene:
         camera = resolve_camera(p.camera, self.scene, width, height)
         return camera, resolve_lights(p.lights, self.scene)
 
+    def turned(self, turn: int, width: int = WIDTH, height: int = HEIGHT,
+               **fields) -> RenderParams:
+        """A request from a camera no other ``turn`` gives: this scene's own camera turned
+        about the vertical through the centre of the scene's bounds by ``turn`` thirds of a
+        degree, looking at that centre. Each such request plans anew (the renderer's plans
+        are kept per request), as a batch's views and a moving client's requests do."""
+        camera = self.resolved(width, height)[0]
+        centre = np.asarray(self.scene.bounds, np.float64).mean(axis=0)
+        a = math.radians(turn / 3.0)
+        rot = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0],
+                        [-math.sin(a), 0.0, math.cos(a)]])
+        eye = centre + rot @ (np.asarray(camera.pose[:3, 3], np.float64) - centre)
+        return self.params(width, height, camera={"eye": eye.tolist(),
+                                                  "target": centre.tolist()}, **fields)
+
     @property
     def directional_only(self) -> bool:
         return all(lt.get("type", "directional") == "directional" for lt in self.lights)

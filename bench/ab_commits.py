@@ -20,17 +20,22 @@ tree's renderer through the editable install: every comparison before it set the
 against itself.) ``--keep-freed`` makes both processes keep freed memory, as the service's and
 the batch's render workers do.
 
-Writes ``bench/results/ab_commits_<REV's short hash>[_<REV2's>].{md,csv}``: one pair of files
-per comparison, so that a comparison a note quotes is not replaced by the next one.
+``--new-camera`` gives every render a camera no render used before (the scene's own, turned
+further about the vertical each time, the same for both versions): each plans anew, as a batch's
+views and a moving client's requests do, and the plan stage is where a change to planning shows.
+
+Writes ``bench/results/ab_commits_<REV's short hash>[_<REV2's>][_new_camera].{md,csv}``: one
+pair of files per comparison, so that a comparison a note quotes is not replaced by the next one.
 
 Run: ``PYTHONPATH=. .venv/bin/python bench/ab_commits.py REV [--against REV2]
-[--scenes Duck,room_point] [--repeats N] [--params JSON] [--keep-freed]``
+[--scenes Duck,room_point] [--repeats N] [--params JSON] [--keep-freed] [--new-camera]``
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import itertools
 import json
 import math
 import os
@@ -65,14 +70,24 @@ r = Renderer()
 scenes, params = {}, {}
 extra = json.loads(sys.argv[1])
 
-def scene(name):
+def scene(name, turn=None):
     if name not in scenes:
         bs = C.model_scene(name + ".glb") if name + ".glb" in C.MODEL_NAMES else (
             C.model_scene(name + ".gltf") if name + ".gltf" in C.MODEL_NAMES
             else C.stress_scene(name))
-        scenes[name] = bs.scene
+        scenes[name] = bs
         params[name] = bs.params(**extra)
-    return scenes[name], params[name]
+    bs = scenes[name]
+    if turn is None:
+        return bs.scene, params[name]
+    # A camera no render has used: the scene's own turned about the vertical through the centre
+    # of the scene's bounds by `turn` steps of a third of a degree (a plan of its own each time).
+    cam = bs.resolved()[0]
+    centre = np.asarray(bs.scene.bounds, np.float64).mean(axis=0)
+    a = np.radians(turn / 3.0)
+    rot = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    eye = centre + rot @ (np.asarray(cam.pose[:3, 3], np.float64) - centre)
+    return bs.scene, bs.params(camera={"eye": eye.tolist(), "target": centre.tolist()}, **extra)
 
 def reply(obj):
     sys.stdout.write(TAG + json.dumps(obj) + "\n")
@@ -84,7 +99,7 @@ reply({"ready": True, "info": dict(r.info), "renderer": shadowmap.renderer.__fil
 for line in sys.stdin:
     req = json.loads(line)
     try:
-        s, p = scene(req["scene"])
+        s, p = scene(req["scene"], req.get("turn"))
         if req["op"] == "render":
             t = time.perf_counter()
             res = r.render(s, p)
@@ -170,16 +185,26 @@ class Version:
         self.proc.wait(timeout=30)
 
 
-def compare(a: Version, b: Version, scene: str, repeats: int, warmup: int = 3
+def compare(a: Version, b: Version, scene: str, repeats: int, warmup: int = 3,
+            new_camera: bool = False, turns: itertools.count | None = None
             ) -> dict[str, dict[str, list[float]]]:
-    """Render ``scene`` ``repeats`` times in each version, alternating (A B, B A, A B, ...)."""
+    """Render ``scene`` ``repeats`` times in each version, alternating (A B, B A, A B, ...);
+    with ``new_camera`` each pair of renders from a camera turned further (``turns``: the step
+    counter, shared by every scene and round so that no camera comes back)."""
+    turns = turns if turns is not None else itertools.count(1)
+
+    def turn() -> dict[str, int]:
+        return {"turn": next(turns)} if new_camera else {}
+
     for _ in range(warmup):
-        a.ask(op="render", scene=scene)
-        b.ask(op="render", scene=scene)
+        t = turn()
+        a.ask(op="render", scene=scene, **t)
+        b.ask(op="render", scene=scene, **t)
     out: dict[str, dict[str, list[float]]] = {a.label: {}, b.label: {}}
     for k in range(repeats):
+        t = turn()
         for v in ((a, b) if k % 2 == 0 else (b, a)):
-            r = v.ask(op="render", scene=scene)
+            r = v.ask(op="render", scene=scene, **t)
             out[v.label].setdefault("wall", []).append(r["wall"])
             for stage, sec in r["timings"].items():
                 out[v.label].setdefault(stage, []).append(sec)
@@ -205,9 +230,10 @@ def _pixels_differing(a: Version, b: Version, scene: str, folder: Path) -> int:
 
 
 def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict,
-        keep_freed: bool = False, against: str | None = None) -> None:
+        keep_freed: bool = False, against: str | None = None, new_camera: bool = False) -> None:
     t_start = time.perf_counter()
-    stages = ("camera", "light", "readback", "wall")
+    stages = ("plan", "camera", "light", "readback", "wall")
+    turns = itertools.count(1)
     # per scene, version and stage: the median of each round
     medians: dict[str, dict[str, dict[str, list[float]]]] = {}
     differ: dict[str, int] = {}
@@ -233,7 +259,8 @@ def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict,
                 info = work.info
                 try:
                     for name in scenes:
-                        t = compare(base, work, name, repeats)
+                        t = compare(base, work, name, repeats, new_camera=new_camera,
+                                    turns=turns)
                         for label, key in ((commit, "a"), (b_label, "b")):
                             for stage in stages:
                                 v = t[label].get(stage, [])
@@ -253,26 +280,32 @@ def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict,
         cells = {f"{stage}_{key}": C.median(m[key][stage]) for key in "ab" for stage in stages}
         # The ratio is taken within each round (the pair ran side by side, through the same
         # spells of a busy machine), then the median over the rounds.
-        for stage in ("camera", "readback", "wall"):
+        for stage in ("plan", "camera", "readback", "wall"):
             cells[f"{stage}_ratio"] = C.median([b / a for a, b in zip(m["a"][stage], m["b"][stage],
                                                                       strict=True)])
         rows.append([name, *(C.fmt(cells[f"{st}_{v}"], 3) for st in stages for v in "ab"),
-                     *(C.fmt(cells[f"{st}_ratio"], 3) for st in ("camera", "readback", "wall")),
+                     *(C.fmt(cells[f"{st}_ratio"], 3)
+                       for st in ("plan", "camera", "readback", "wall")),
                      str(differ[name])])
         csv_rows.append({"scene": name, **{k: round(v, 4) for k, v in cells.items()},
                          "pixels_differing": differ[name]})
     machine = f"{info.get('platform')}, {info.get('renderer')}, GL {info.get('version')}"
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
     b = b_label
-    headers = ["scene", f"camera ms, {commit}", f"camera ms, {b}", f"light ms, {commit}",
-               f"light ms, {b}", f"readback ms, {commit}", f"readback ms, {b}",
-               f"wall ms, {commit}", f"wall ms, {b}", f"camera, {b} / {commit}",
+    headers = ["scene", f"plan ms, {commit}", f"plan ms, {b}", f"camera ms, {commit}",
+               f"camera ms, {b}", f"light ms, {commit}", f"light ms, {b}",
+               f"readback ms, {commit}", f"readback ms, {b}", f"wall ms, {commit}",
+               f"wall ms, {b}", f"plan, {b} / {commit}", f"camera, {b} / {commit}",
                f"readback, {b} / {commit}", f"wall, {b} / {commit}", "pixels differing"]
-    ratios = [r["camera_ratio"] for r in csv_rows if r["camera_ratio"] > 0]
-    summary = (f"- Camera pass, {b} over {commit}: geometric mean "
-               f"{math.exp(sum(map(math.log, ratios)) / len(ratios)):.3f} over {len(ratios)} "
-               f"scenes; pixels differing in {sum(r['pixels_differing'] != 0 for r in csv_rows)}"
-               f" of them.") if ratios else "- No scene rendered."
+
+    def geomean(key: str) -> float:
+        vals = [r[key] for r in csv_rows if r[key] > 0]
+        return math.exp(sum(map(math.log, vals)) / len(vals)) if vals else math.nan
+
+    summary = (f"- Camera pass, {b} over {commit}: geometric mean {geomean('camera_ratio'):.3f}"
+               f"; wall time {geomean('wall_ratio'):.3f}; plan stage {geomean('plan_ratio'):.3f}"
+               f"; over {len(csv_rows)} scenes; pixels differing in "
+               f"{sum(r['pixels_differing'] != 0 for r in csv_rows)} of them.")
     md = "\n".join([
         f"# The same renders by {commit} and by "
         + (f"{b}" if against is not None else f"the working tree ({here})"), "",
@@ -281,8 +314,13 @@ def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict,
         f"{repeats} repeats after 3 warm-ups; the median of each of {rounds} rounds, each with "
         f"a fresh pair of processes, and the median of those; each ratio is taken within each "
         f"round, then their median. Stages: the renderer's own timings "
-        f"(`RenderResult.timings`); the light pass is drawn once and cached, as a repeated "
-        f"request's is. Pixels differing: of the colour output, any channel."
+        f"(`RenderResult.timings`); "
+        + ("each render from a camera no render used before (the scene's own turned about "
+           "the vertical through the scene's centre by a further third of a degree, the same "
+           "camera for both versions), so each plans anew and fits its light anew, as a batch's "
+           "views and a moving client's requests do. " if new_camera else
+           "the light pass is drawn once and cached, as a repeated request's is. ")
+        + "Pixels differing: of the colour output (the scene's own camera), any channel."
         + (" Both processes keep freed memory for their next renders (glibc's trim and mmap "
            "thresholds, as `keep_freed_memory()` sets them in the service's and the batch's "
            "workers)." if keep_freed else ""), "",
@@ -290,7 +328,8 @@ def run(rev: str, scenes: list[str], repeats: int, rounds: int, extra: dict,
         f"Machine: {machine}; {os.cpu_count()} CPU cores (load average {load} at the end); "
         f"Python {sys.version.split()[0]}. Run time {time.perf_counter() - t_start:.0f} s.", ""])
     out_dir = C.results_dir()
-    stem = f"ab_commits_{commit}" + (f"_{b}" if against is not None else "")
+    stem = (f"ab_commits_{commit}" + (f"_{b}" if against is not None else "")
+            + ("_new_camera" if new_camera else ""))
     (out_dir / f"{stem}.md").write_text(md)
     C.write_csv(out_dir / f"{stem}.csv", csv_rows)
     print(md)
@@ -310,9 +349,12 @@ def main() -> None:
     ap.add_argument("--keep-freed", action="store_true",
                     help="both processes keep freed memory, as the service's and the batch's "
                     "render workers do (shadowmap.renderer.allocator)")
+    ap.add_argument("--new-camera", action="store_true",
+                    help="each render from a camera no render used before: the plan and the "
+                    "light fit made anew every time, as for a batch's views")
     args = ap.parse_args()
     run(args.rev, [s for s in args.scenes.split(",") if s], args.repeats, args.rounds,
-        json.loads(args.params), args.keep_freed, args.against)
+        json.loads(args.params), args.keep_freed, args.against, args.new_camera)
 
 
 if __name__ == "__main__":
