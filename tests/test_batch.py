@@ -25,6 +25,7 @@ from batch_jobs import (
 )
 from shadowmap.batch import render_many
 from shadowmap.batch.manifest import SceneHasher, load_manifest, parse_job
+from shadowmap.batch.results import write_job_files
 from shadowmap.renderer import Limits
 
 pytestmark = pytest.mark.gl
@@ -383,3 +384,16 @@ def test_manifest_bytes_a_text_reader_would_stop_at(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "2 ok, 2 error, 0 failed" in proc.stdout
     assert "error: line-3: limit_exceeded: line 3 is over 1000 bytes" in proc.stderr
+
+
+def test_job_files_stay_in_the_job_folder(tmp_path):
+    files = {"view_001/color.png": b"png", "meta.json": b"{}", "view_001/depth.npy": b"npy"}
+    assert write_job_files(tmp_path, "job", files) == sorted(files)
+    assert (tmp_path / "job" / "view_001" / "color.png").read_bytes() == b"png"
+    assert (tmp_path / "job" / "meta.json").read_bytes() == b"{}"
+    for bad in ("../escape.png", "/tmp/abs.png", "view/../../up.png", "", "a\\..\\b.png"):
+        with pytest.raises(ValueError, match="leaves the job's folder"):
+            write_job_files(tmp_path, "other", {"meta.json": b"{}", bad: b"x"})
+        # Refused before anything is written: no job folder, nothing outside it.
+        assert not (tmp_path / "other").exists()
+        assert not (tmp_path / "escape.png").exists() and not (tmp_path.parent / "up.png").exists()

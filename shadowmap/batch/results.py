@@ -17,7 +17,7 @@ import json
 import os
 import shutil
 import time
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 __all__ = ["RESULTS_NAME", "ResultsLog", "write_job_files"]
@@ -101,11 +101,19 @@ def write_job_files(out_dir: Path, job_id: str, files: dict[str, bytes]) -> list
     if partial.exists():
         shutil.rmtree(partial)
     names = sorted(files)
+    # Checked by the name alone, before anything is written: the folder is new, so no link
+    # inside it can lead out (resolving each path asked the file system twice per file).
     for name in names:
-        target = (partial / name).resolve()
-        if not str(target).startswith(str(partial.resolve()) + os.sep):
+        parts = PurePosixPath(name).parts
+        if (not parts or parts[0] == "/" or any(p in (".", "..") for p in parts)
+                or "\\" in name or "\0" in name):
             raise ValueError(f"output name {name!r} leaves the job's folder")
-        target.parent.mkdir(parents=True, exist_ok=True)
+    made: set[Path] = set()
+    for name in names:
+        target = partial / name
+        if target.parent not in made:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            made.add(target.parent)
         target.write_bytes(files[name])
     final = out_dir / job_id
     if final.exists():
