@@ -150,6 +150,30 @@ def _picture(t: np.ndarray, near: float, far: float
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class _RequestBase:
+    """What :meth:`Renderer._request_base` settles of a request before its camera.
+
+    ``scene`` is the one drawn (with the ground when asked), ``params`` a private copy of the
+    request with its ``max_map_size`` held to what fits (``held``: it was), ``warnings`` the
+    file's and the request's so far. The lights are resolved on first use, where a request
+    resolves them (after its camera), and kept.
+    """
+
+    scene: Scene
+    params: RenderParams
+    warnings: list[str]
+    held: bool
+    _lights: list[list[Light]] = field(default_factory=list)
+
+    def lights(self, scene: Scene, params: RenderParams) -> list[Light]:
+        """:func:`resolve_lights` of the request's lights (``params`` differs from the base's
+        own copy in its camera alone, which the lights do not read)."""
+        if not self._lights:
+            self._lights.append(resolve_lights(params.lights, scene))
+        return self._lights[0]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class _Prepared:
     """What :meth:`Renderer._prepare` settles for one request before any GL work.
 
@@ -285,6 +309,11 @@ class Renderer:
         #: Each request's preparation (see :meth:`_prepare`), by (source scene, request JSON).
         self.requests: OrderedDict[tuple[int, str], tuple[weakref.ref[Scene], tuple, _Prepared]]
         self.requests = OrderedDict()
+        #: What requests that differ in their camera alone share (see :meth:`_request_base`),
+        #: by (source scene, request JSON without the camera).
+        self.request_bases: OrderedDict[tuple[int, str],
+                                        tuple[weakref.ref[Scene], tuple, _RequestBase]]
+        self.request_bases = OrderedDict()
         self._closed = False
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -306,6 +335,7 @@ class Renderer:
             self.context.make_current()
             self._grounded.clear()
             self.requests.clear()
+            self.request_bases.clear()
             self.uploads.clear()
             self.light_pass.release()
             self.camera_pass.release()
@@ -480,6 +510,69 @@ class Renderer:
 
     def _prepare_new(self, scene: Scene, params: RenderParams,
                      params_json: str | None) -> _Prepared:
+        base = self._request_base(scene, params)
+        scene, warnings = base.scene, list(base.warnings)
+        # The base's copy of the request (its max_map_size held), with this request's camera:
+        # only the camera differs between the requests that share a base, and nothing after
+        # this point changes the copy.
+        params = base.params.model_copy(
+            update={"camera": None if params.camera is None
+                    else params.camera.model_copy(deep=True)})
+        if base.held:
+            params_json = None
+        # Before the upload and the camera: coordinates float32 cannot hold would overflow there.
+        lo, hi = scene.bounds
+        check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
+        t = time.perf_counter()
+        camera = resolve_camera(params.camera, scene, params.width, params.height)
+        clipped = near_clip_warning(camera, scene, params.camera)
+        if clipped:
+            warnings.append(clipped)
+        lights = base.lights(scene, params)
+        check_lights(len(lights), self.limits)
+        # Again with the file's camera and lights, and the resolved positions. The upload is
+        # placed at the centre of the scene's bounds (GpuScene.upload). What the request named
+        # passed above: only what the scene placed can fail here.
+        origin = (lo + hi) / 2
+        check_gpu_range(scene.bounds, origin, [camera.position] + [
+            lt.position for lt in lights if lt.type != "directional"], scene_placed=True)
+        # A view that looks closely at a part far from the centre is drawn relative to a point
+        # beside its eye instead (GpuScene.set_origin).
+        placed = view_origin(camera, scene, origin)
+        if placed.warning:
+            warnings.append(placed.warning)
+        origin = placed.origin
+        key = (plan_key(scene, camera, lights, origin, params, params_json)
+               if self.plans.enabled else "")
+        report = _camera_report(camera, scene)
+        report["origin"], report["origin_at"] = origin.tolist(), placed.at
+        return _Prepared(scene, params, warnings, camera, lights, origin, key, report,
+                         time.perf_counter() - t)
+
+    def _request_base(self, scene: Scene, params: RenderParams) -> _RequestBase:
+        """What a request settles before its camera, the same object again for a request that
+        differs from an earlier one in its camera alone (a batch's views, a client moving its
+        camera): the checks against the limits, the ground, the memory estimate, the copy of
+        the request and its lights. Kept like :meth:`_prepare`'s preparations; a request that
+        fails a check is not kept."""
+        key = ((id(scene), params.model_dump_json(exclude={"camera"}))
+               if self.cache_entries > 0 else None)
+        state = _ground_state(scene)
+        if key is not None:
+            hit = self.request_bases.get(key)
+            if hit is not None and hit[0]() is scene and _same_state(hit[1], state):
+                self.request_bases.move_to_end(key)
+                return hit[2]
+        base = self._request_base_new(scene, params)
+        if key is not None:
+            for k in [k for k, v in self.request_bases.items() if v[0]() is None]:
+                del self.request_bases[k]  # their scenes are gone (an id may be reused)
+            self.request_bases[key] = (weakref.ref(scene), state, base)
+            while len(self.request_bases) > self.cache_entries:
+                self.request_bases.popitem(last=False)
+        return base
+
+    def _request_base_new(self, scene: Scene, params: RenderParams) -> _RequestBase:
         check_request(params, self.limits)
         # A copy, read before the ground is added: what loading left out belongs to the file,
         # and a cached scene's list must not grow with every render.
@@ -500,42 +593,15 @@ class Renderer:
         warnings += request_warnings(params, scene, self.limits) + fitted
         # A copy the preparation keeps: the caller may change their model afterwards.
         params = params.model_copy(deep=True)
-        if params.shadows.max_map_size != top:
+        held = params.shadows.max_map_size != top
+        if held:
             params.shadows.max_map_size = top
-            params_json = None
         # Nothing to draw from any camera (the focus: a ground under a point spans 6e-30).
         focus = scene.bounds if scene.focus is None else scene.focus
         if not np.any(focus[1] > focus[0]):
             raise SceneError("every vertex of the scene lies at one point: no triangle has an "
                              "area to draw")
-        # Before the upload and the camera: coordinates float32 cannot hold would overflow there.
-        lo, hi = scene.bounds
-        check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
-        t = time.perf_counter()
-        camera = resolve_camera(params.camera, scene, params.width, params.height)
-        clipped = near_clip_warning(camera, scene, params.camera)
-        if clipped:
-            warnings.append(clipped)
-        lights = resolve_lights(params.lights, scene)
-        check_lights(len(lights), self.limits)
-        # Again with the file's camera and lights, and the resolved positions. The upload is
-        # placed at the centre of the scene's bounds (GpuScene.upload). What the request named
-        # passed above: only what the scene placed can fail here.
-        origin = (lo + hi) / 2
-        check_gpu_range(scene.bounds, origin, [camera.position] + [
-            lt.position for lt in lights if lt.type != "directional"], scene_placed=True)
-        # A view that looks closely at a part far from the centre is drawn relative to a point
-        # beside its eye instead (GpuScene.set_origin).
-        placed = view_origin(camera, scene, origin)
-        if placed.warning:
-            warnings.append(placed.warning)
-        origin = placed.origin
-        key = (plan_key(scene, camera, lights, origin, params, params_json)
-               if self.plans.enabled else "")
-        report = _camera_report(camera, scene)
-        report["origin"], report["origin_at"] = origin.tolist(), placed.at
-        return _Prepared(scene, params, warnings, camera, lights, origin, key, report,
-                         time.perf_counter() - t)
+        return _RequestBase(scene, params, warnings, held)
 
     def _render(self, prep: _Prepared, timings: dict[str, float], t0: float) -> RenderResult:
         from OpenGL import GL
