@@ -110,6 +110,21 @@ class Camera:
         return _read_only(perspective(self.yfov, self.width / self.height, self.znear,
                                       self.zfar))
 
+    def view_projection(self, origin: np.ndarray) -> np.ndarray:
+        """``projection @ view_from(origin)``, shape (4, 4), read-only: computed once per
+        camera and origin (a plan's view test, its shadow region and the camera pass all use
+        it)."""
+        key = np.asarray(origin, np.float64).tobytes()
+        vp = self._view_projections.get(key)
+        if vp is None:
+            vp = self._view_projections[key] = _read_only(self.projection
+                                                          @ self.view_from(origin))
+        return vp
+
+    @cached_property
+    def _view_projections(self) -> dict[bytes, np.ndarray]:
+        return {}
+
     def _half_extents(self, z: float) -> tuple[float, float]:
         """Half width and half height of the view at distance ``z``."""
         h = self.ymag if self.ymag is not None else z * math.tan(self.yfov / 2)

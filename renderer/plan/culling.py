@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # the camera and lights import this package: types only, no i
 def view_planes(camera: Camera, origin: np.ndarray) -> np.ndarray:
     """The camera frustum's six unit-normal planes (:func:`.geometry.frustum_planes`), relative
     to ``origin``, shape (6, 4)."""
-    return frustum_planes(camera.projection @ camera.view_from(origin))
+    return frustum_planes(camera.view_projection(origin))
 
 
 def near_first(ctx: PlanContext, instances: np.ndarray) -> np.ndarray:

@@ -590,7 +590,7 @@ def union_rects(rects: np.ndarray, axis: int) -> np.ndarray:
 def view_projection(camera: Camera, origin: np.ndarray) -> np.ndarray:
     """The camera's view-projection matrix for origin-relative points, shape (4, 4)
     (:meth:`~renderer.camera.Camera.view_from`)."""
-    return camera.projection @ camera.view_from(origin)
+    return camera.view_projection(origin)
 
 
 def lookup_reach(pcf_radius: int, normal_offset: float) -> float:
