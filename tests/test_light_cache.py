@@ -291,24 +291,25 @@ def test_a_request_model_changed_in_place_is_prepared_again(renderer, demo):
 
 
 @pytest.mark.gl
-def test_requests_differing_in_their_camera_alone_share_their_checks(renderer, demo):
+def test_requests_differing_in_their_camera_alone_share_their_checks(demo):
     """A new camera on the same request resolves its camera and plans anew, and takes the rest
     of its preparation (limits, ground, memory estimate, the copy of the request, its lights)
     from the first such request: the same pictures, plans and warnings as a renderer that
     keeps nothing."""
     views = [orbit(k, fit="view", map_size=256, max_map_size=128) for k in (1, 2, 3)]
-    before = len(renderer.request_bases)
-    kept = [renderer.render(demo, v) for v in views]
-    assert len(renderer.request_bases) == before + 1  # one base for the three cameras
-    assert all(r.plan["plan_cache"] == "miss" for r in kept)
-    with Renderer(cache_entries=0) as bare:
-        for v, r in zip(views, kept, strict=True):
+    with Renderer() as r, Renderer(cache_entries=0) as bare:
+        kept = [r.render(demo, v) for v in views]
+        assert len(r.request_bases) == 1  # one base for the three cameras
+        assert len(r.requests) == 3
+        assert all(k.plan["plan_cache"] == "miss" for k in kept)
+        for v, k in zip(views, kept, strict=True):
             fresh = bare.render(demo, v)
-            assert _same(r.color, fresh.color)
-            assert r.warnings == fresh.warnings
-            assert r.plan["camera"] == fresh.plan["camera"]
-            assert r.plan["lights"][0]["map_size"] == fresh.plan["lights"][0]["map_size"]
-    # Anything else changed is another base.
-    other = renderer.render(demo, {**views[0], "specular": 0.5})
-    assert len(renderer.request_bases) == before + 2
-    assert other.plan["plan_cache"] == "miss"
+            assert _same(k.color, fresh.color)
+            assert k.warnings == fresh.warnings
+            assert k.plan["camera"] == fresh.plan["camera"]
+            assert k.plan["lights"][0]["map_size"] == fresh.plan["lights"][0]["map_size"]
+        # Anything else changed is another base.
+        other = r.render(demo, {**views[0], "specular": 0.5})
+        assert len(r.request_bases) == 2
+        assert other.plan["plan_cache"] == "miss"
+        assert not bare.request_bases  # a renderer that keeps nothing keeps no base either

@@ -392,8 +392,9 @@ def aabbs_against_frustum(bounds: np.ndarray, planes: np.ndarray,
     # The farthest and the nearest corner's distance, (N, 2P): per axis the max or min corner by
     # the sign of the normal, from the rows (min, max) of the boxes as they lie in memory.
     pos, neg = np.maximum(n, 0).T, np.minimum(n, 0).T  # (3, P)
-    d = thin_matmul(np.ascontiguousarray(bounds, np.float64).reshape(-1, 6),
-                    np.block([[neg, pos], [pos, neg]]))
+    m = np.empty((6, 2 * p))  # [[neg, pos], [pos, neg]], assembled (np.block takes 14 µs)
+    m[:3, :p], m[:3, p:], m[3:, :p], m[3:, p:] = neg, pos, pos, neg
+    d = thin_matmul(np.ascontiguousarray(bounds, np.float64).reshape(-1, 6), m)
     d += np.concatenate([w, w])
     far = d[:, :p]
     whole = corner_min(d[:, p:]) >= 0
