@@ -165,11 +165,10 @@ class _RequestBase:
     held: bool
     _lights: list[list[Light]] = field(default_factory=list)
 
-    def lights(self, scene: Scene, params: RenderParams) -> list[Light]:
-        """:func:`resolve_lights` of the request's lights (``params`` differs from the base's
-        own copy in its camera alone, which the lights do not read)."""
+    def lights(self) -> list[Light]:
+        """:func:`resolve_lights` of the request's lights (which its camera does not change)."""
         if not self._lights:
-            self._lights.append(resolve_lights(params.lights, scene))
+            self._lights.append(resolve_lights(self.params.lights, self.scene))
         return self._lights[0]
 
 
@@ -528,7 +527,7 @@ class Renderer:
         clipped = near_clip_warning(camera, scene, params.camera)
         if clipped:
             warnings.append(clipped)
-        lights = base.lights(scene, params)
+        lights = base.lights()
         check_lights(len(lights), self.limits)
         # Again with the file's camera and lights, and the resolved positions. The upload is
         # placed at the centre of the scene's bounds (GpuScene.upload). What the request named
