@@ -107,7 +107,6 @@ def _visible_receivers(in_view: np.ndarray, receive: np.ndarray, optimize: bool)
     return rec
 
 
-@dataclass(frozen=True)
 class Seen:
     """What the camera can see of its receivers: the parts of their boxes inside its frustum.
 
@@ -115,6 +114,10 @@ class Seen:
     in one. Their extent along any direction (a light's lateral window, its deepest receiver) and
     the extremes of a point's slopes or Chebyshev distance from a light are reached at the boxes
     of ``whole`` or at ``points`` (:func:`.geometry.clip_boxes`).
+
+    Made by :meth:`clip`, the parts are clipped when first read: only a light fitted to the view
+    reads them, so a request whose lights cast no shadow, or whose maps cover every receiver
+    (``shadows.fit: "scene"``), never clips.
 
     Attributes
     ----------
@@ -125,23 +128,51 @@ class Seen:
         The vertices of the other receivers' boxes clipped to the frustum (origin-relative).
     """
 
-    whole: np.ndarray
-    points: np.ndarray
+    __slots__ = ("_clip_args", "_parts")
+
+    def __init__(self, whole: np.ndarray, points: np.ndarray) -> None:
+        self._parts: tuple[np.ndarray, np.ndarray] | None = (whole, points)
+        self._clip_args: tuple[np.ndarray, ...] | None = None
 
     @classmethod
     def clip(cls, bounds: np.ndarray, receivers: np.ndarray, whole: np.ndarray,
              planes: np.ndarray, frustum_corners: np.ndarray) -> Seen:
         """The receivers' boxes clipped to the view frustum (``planes``, ``frustum_corners``);
-        ``whole`` (N,) marks the boxes wholly inside it."""
-        inside = whole[receivers]
-        boxes = bounds[receivers[~inside]]
-        # Rounding tolerance: a part may come out larger by a billionth of the view's span.
-        scale = max(float(np.max(np.abs(frustum_corners))),
-                    float(np.max(np.abs(boxes), initial=0.0)))
-        points = clip_boxes(boxes, planes, frustum_corners, 1e-9 * scale)
-        if not inside.any() and len(points) == 0:
-            inside = np.ones(len(receivers), bool)
-        return cls(whole=_frozen(receivers[inside]), points=_frozen(points))
+        ``whole`` (N,) marks the boxes wholly inside it. The arguments are read-only; the clip
+        runs on the first read of :attr:`whole` or :attr:`points`."""
+        seen = cls.__new__(cls)
+        seen._parts = None
+        seen._clip_args = (bounds, receivers, whole, planes, frustum_corners)
+        return seen
+
+    def _get(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._parts is None:
+            assert self._clip_args is not None
+            self._parts = _clip_seen(*self._clip_args)
+            self._clip_args = None
+        return self._parts
+
+    @property
+    def whole(self) -> np.ndarray:
+        return self._get()[0]
+
+    @property
+    def points(self) -> np.ndarray:
+        return self._get()[1]
+
+
+def _clip_seen(bounds: np.ndarray, receivers: np.ndarray, whole: np.ndarray, planes: np.ndarray,
+               frustum_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`Seen.clip`'s work: (whole, points)."""
+    inside = whole[receivers]
+    boxes = bounds[receivers[~inside]]
+    # Rounding tolerance: a part may come out larger by a billionth of the view's span.
+    scale = max(float(np.max(np.abs(frustum_corners))),
+                float(np.max(np.abs(boxes), initial=0.0)))
+    points = clip_boxes(boxes, planes, frustum_corners, 1e-9 * scale)
+    if not inside.any() and len(points) == 0:
+        inside = np.ones(len(receivers), bool)
+    return _frozen(receivers[inside]), _frozen(points)
 
 
 @dataclass(frozen=True)
