@@ -88,6 +88,42 @@ def test_scene_fit_lights_are_planned_once_for_every_view(demo):
     assert (memo.misses, memo.hits) == counts
 
 
+@pytest.mark.parametrize("make", [T.caster_on_ground, lambda: T.many_small_objects(60)])
+def test_scene_fit_views_take_their_shadow_regions_pairs_from_the_memo(make):
+    # Views that see different receivers: each takes its visible receivers' swept pairs from the
+    # ones the memo made over every receiver, and plans the region a fresh plan gives, box for
+    # box; the pairs are made once.
+    from shadowmap.renderer.cache import BoundedCache
+
+    scene = make()
+    lo, hi = scene.bounds
+    centre, size = (lo + hi) / 2, float(np.max(hi - lo))
+    memo: BoundedCache = BoundedCache(8)
+    shown = set()
+    for k in range(6):
+        a = 2 * math.pi * k / 6
+        eye = centre + size * np.array([0.9 * math.cos(a), 0.35 + 0.1 * k, 0.9 * math.sin(a)])
+        p = RenderParams.model_validate({
+            "width": 640, "height": 480, "shadows": {"fit": "scene", "map_size": 1024},
+            "camera": {"eye": eye.tolist(), "target": (centre + [0.1 * k, 0, 0]).tolist(),
+                       "yfov_deg": 30.0 + 8 * k}})
+        cam = resolve_camera(p.camera, scene, p.width, p.height)
+        lights = resolve_lights(p.lights, scene)
+        with_memo = make_plan(scene, cam, lights, centre, p, memo)
+        fresh = make_plan(scene, cam, lights, centre, p)
+        a_region, b_region = with_memo.shadow_region, fresh.shadow_region
+        assert a_region is not None and b_region is not None
+        assert with_memo.to_dict() == fresh.to_dict()
+        assert np.array_equal(a_region.classes, b_region.classes)
+        assert (a_region.rects, a_region.counts, a_region.share) == (
+            b_region.rects, b_region.counts, b_region.share)
+        shown.add(tuple(with_memo.visible))
+    assert len(shown) > 1 and (memo.misses, memo.hits) == (1, 5)
+    (kept,) = memo.values()
+    (pairs,) = kept._pairs.values()
+    assert pairs is not None and len(pairs.boxes) > 0
+
+
 def test_view_fit_follows_the_camera(demo):
     a, b = (plan_of(demo, orbit(k, fit="view")).lights[0] for k in (0, 2))
     assert not np.array_equal(a.proj, b.proj)

@@ -55,6 +55,21 @@ class Toward:
         return np.divide(d, length, out=np.zeros_like(d), where=length > 0)
 
 
+@dataclass(frozen=True)
+class SizeRead:
+    """One :meth:`PlanContext.map_size_and_need` call of a scene-fit light's plan: its arguments
+    and the size it gave, which another view must get again to share the plan
+    (:meth:`.plan.SceneFitPlan.refit`). ``stretch``: the any-view stretch the call found, where
+    no camera changes it (see :meth:`PlanContext.receiver_distance`), else None."""
+
+    world: float
+    receivers: np.ndarray
+    cube: bool
+    toward: Toward | None
+    size: int
+    stretch: float | None
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a
@@ -236,9 +251,9 @@ class PlanContext:
     #: An orthographic camera's pixels are the same size at every distance: the distances that
     #: size texels all count as this one (:meth:`view_distance`). None: perspective.
     flat_distance: float | None = None
-    #: Where given, every :meth:`map_size_for` call appends its (world, receivers, cube, toward,
-    #: size): what a scene-fit light's plan read of the camera (see :func:`.plan.scene_fit_key`).
-    sizes_read: list[tuple[float, np.ndarray, bool, Toward | None, int]] | None = None
+    #: Where given, every :meth:`map_size_for` call appends its :class:`SizeRead`: what a
+    #: scene-fit light's plan read of the camera (see :func:`.plan.scene_fit_key`).
+    sizes_read: list[SizeRead] | None = None
     #: The scene's instance arrays, for the faces of the receivers (:meth:`receiver_distance`).
     arrays: SceneArrays | None = None
     #: Weigh the receivers' faces as any view could see them, not as this camera does (a map
@@ -333,15 +348,18 @@ class PlanContext:
         return self.map_size_and_need(world, receivers, cube, toward)[0]
 
     def map_size_and_need(self, world: float, receivers: np.ndarray, cube: bool = False,
-                          toward: Toward | None = None) -> tuple[int, float]:
+                          toward: Toward | None = None, stretch: float | None = None
+                          ) -> tuple[int, float]:
         """:meth:`map_size_for`, and the texels per side the same receivers want at one camera
         pixel per texel (what 'auto' would give them but for ``max_map_size``: the plan warns
-        when that is over the limit, :func:`~.plan._resolution_warning`)."""
-        pixel = self.pixel_per_distance * self.receiver_distance(receivers, toward)
+        when that is over the limit, :func:`~.plan._resolution_warning`). ``stretch``: see
+        :meth:`receiver_distance`."""
+        distance, stretch = self._distance_and_stretch(receivers, toward, stretch)
+        pixel = self.pixel_per_distance * distance
         wanted = world / max(pixel, 1e-300)
         size = self.map_size(wanted, cube)
         if self.sizes_read is not None:
-            self.sizes_read.append((world, receivers, cube, toward, size))
+            self.sizes_read.append(SizeRead(world, receivers, cube, toward, size, stretch))
         return size, wanted * AUTO_TEXEL_PIXELS
 
     def margin(self, extent: float, size: int) -> float:
@@ -358,7 +376,8 @@ class PlanContext:
             return d
         return np.full_like(d, self.flat_distance)
 
-    def receiver_distance(self, receivers: np.ndarray, toward: Toward | None = None) -> float:
+    def receiver_distance(self, receivers: np.ndarray, toward: Toward | None = None,
+                          stretch: float | None = None) -> float:
         """A representative camera distance of the receivers: the nearest box centre, or nearer
         where a light ``toward`` stretches its texels over their flat faces.
 
@@ -370,24 +389,41 @@ class PlanContext:
         :attr:`any_view`, the nearest distance over the largest k of the (nearest
         :data:`MAX_STRETCH_RECEIVERS`) receivers, k the most any view could see (1 / cos of the
         light's angle to the face).
+
+        With :attr:`any_view` and at most :data:`MAX_STRETCH_RECEIVERS` receivers, the nearest
+        distance is divided by a stretch that no camera changes: ``stretch``, where given, is
+        that divisor as an earlier view of the same receivers and light found it
+        (:class:`SizeRead`), and is not worked out again.
         """
+        return self._distance_and_stretch(receivers, toward, stretch)[0]
+
+    def _distance_and_stretch(self, receivers: np.ndarray, toward: Toward | None,
+                              stretch: float | None) -> tuple[float, float | None]:
+        """:meth:`receiver_distance`, and the any-view stretch it divided by where that does not
+        depend on the camera (else None)."""
         if self.texel_distance is not None:
-            return float(self.view_distance(self.texel_distance))
+            return float(self.view_distance(self.texel_distance)), None
         d = self.view_distance(np.linalg.norm(self.centres[receivers] - self.cam_pos, axis=1))
         near = float(max(np.min(d), self.camera.znear))
         if toward is None or self.arrays is None:
-            return near
-        # A map every view shares weighs every receiver the same, as any view could see it:
-        # its size then follows the camera only by the nearest distance, as without faces.
+            return near, None
+        if self.any_view and len(d) <= MAX_STRETCH_RECEIVERS:
+            # A map every view shares weighs every receiver the same, as any view could see it:
+            # its size then follows the camera only by the nearest distance, as without faces.
+            if stretch is None:
+                stretch = self._any_view_stretch(np.asarray(receivers), toward)
+            return near / stretch, stretch
         cand = np.flatnonzero(d < near * MAX_TEXEL_STRETCH) if not self.any_view else np.arange(
             len(d))
         if len(cand) > MAX_STRETCH_RECEIVERS:
             cand = cand[np.argpartition(d[cand], MAX_STRETCH_RECEIVERS - 1)
                         [:MAX_STRETCH_RECEIVERS]]
         idx = np.asarray(receivers)[cand]
+        if self.any_view:  # the nearest receivers, as in the branch above
+            return near / self._any_view_stretch(idx, toward), None
         owner, normal = self.arrays.patch_normals(idx)
         if len(owner) == 0:
-            return near
+            return near, None
         centre = self.centres[idx][owner]
         # The direction pixels look along: from the eye, or the view axis (orthographic).
         view = (centre - self.cam_pos if self.flat_distance is None
@@ -395,12 +431,20 @@ class PlanContext:
         length = np.sqrt((view * view).sum(axis=1))
         ok = length > 0
         if not ok.any():
-            return near
+            return near, None
         view = view[ok] / length[ok, None]
-        if self.any_view:
-            k = texel_stretch(normal[ok], toward.at(centre[ok]), None)
-            return near / float(np.clip(k.max() * AUTO_TEXEL_PIXELS, 1.0, MAX_TEXEL_STRETCH))
         k = texel_stretch(normal[ok], toward.at(centre[ok]), view)
         k = np.clip(k * AUTO_TEXEL_PIXELS, 1.0, MAX_TEXEL_STRETCH)
         dist = np.maximum(d[cand][owner][ok], self.camera.znear) / k
-        return float(min(near, dist.min()))
+        return float(min(near, dist.min())), None
+
+    def _any_view_stretch(self, idx: np.ndarray, toward: Toward) -> float:
+        """The most any view sees a texel stretched on the flat faces of instances ``idx`` (K,),
+        as a divisor of their nearest distance: 1 / cos of the light's angle to a face, times
+        :data:`AUTO_TEXEL_PIXELS`, held to [1, :data:`MAX_TEXEL_STRETCH`]; 1 without faces."""
+        assert self.arrays is not None
+        owner, normal = self.arrays.patch_normals(idx)
+        if len(owner) == 0:
+            return 1.0
+        k = texel_stretch(normal, toward.at(self.centres[idx][owner]), None)
+        return float(np.clip(k.max() * AUTO_TEXEL_PIXELS, 1.0, MAX_TEXEL_STRETCH))

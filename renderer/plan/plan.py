@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .cascades import CascadeFit, plan_cascades
-from .context import MIN_AUTO_MAP, SHADOW_OUTPUTS, PlanContext, Toward, camera_mode
+from .context import MIN_AUTO_MAP, SHADOW_OUTPUTS, PlanContext, SizeRead, camera_mode
 from .culling import near_first, select_casters
 from .fit import (
     DEPTH_STEP_WARN_TEXELS,
@@ -39,6 +39,7 @@ from .instances import _frozen
 from .shadow_region import (
     MAX_SPLIT_RECEIVERS,
     MIN_REGION_PIXELS,
+    PairBoxes,
     ShadowRegion,
     lookup_reach,
     plan_region,
@@ -321,10 +322,13 @@ def make_plan(
     if params.shadows.fit == "scene":
         # Maps over every receiver, whatever the camera sees: one map per light, no cascades.
         shadow_ctx = ctx.scene_fit()
-        planned = [_plan_scene_fit(shadow_ctx, scene, i, light, scene_fits)
-                   for i, light in enumerate(lights)]
+        fits = [_plan_scene_fit(shadow_ctx, scene, i, light, scene_fits)
+                for i, light in enumerate(lights)]
+        planned = [lp for lp, _ in fits]
+        kept = [k for _, k in fits]
     else:
         planned = _cascade(ctx, [plan_light(ctx, i, light) for i, light in enumerate(lights)])
+        kept = [None] * len(planned)
     region = None
     mode = camera_mode(params)
     # Past MAX_SPLIT_RECEIVERS visible receivers each one would be drawn with lookups anyway;
@@ -334,7 +338,7 @@ def make_plan(
             and camera.width * camera.height >= MIN_REGION_PIXELS
             and any(lp.maps for lp in planned)
             and int(ctx.receive[visible].sum()) <= MAX_SPLIT_RECEIVERS):
-        planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp))
+        planned, region = _shadow_region(ctx, planned, np.asarray(visible, np.intp), kept)
     warnings = [_resolution_warning(lp, params) for lp in planned if lp.needed > lp.map_size]
     warnings += [_precision_warning(lp) for lp in planned if lp.reason == "below_precision"]
     warnings += [_near_warning(lp) for lp in planned if lp.near_clipped]
@@ -388,57 +392,76 @@ def scene_fit_key(ctx: PlanContext, scene: Scene, index: int, light: Light) -> s
 
 @dataclass(frozen=True)
 class SceneFitPlan:
-    """A scene-fit light's plan and the map sizes it asked for: (world, receivers, cube, toward,
-    size) per :meth:`PlanContext.map_size_for` call. Another view reuses it when each call would
-    give it the same size."""
+    """A scene-fit light's plan and the map sizes it asked for (a :class:`~.context.SizeRead`
+    per :meth:`PlanContext.map_size_for` call). Another view reuses it when each call would give
+    it the same size."""
 
     light: LightShadow
-    sizes: tuple[tuple[float, np.ndarray, bool, Toward | None, int], ...]
+    sizes: tuple[SizeRead, ...]
+    #: Its (caster, receiver) pairs' swept boxes over every receiver, per lookup reach, made
+    #: by the first view that plans a shadow region (:meth:`pairs`).
+    _pairs: dict[float, PairBoxes | None] = field(default_factory=dict, compare=False,
+                                                   repr=False)
+
+    def pairs(self, ctx: PlanContext, pad_texels: float) -> PairBoxes | None:
+        """:meth:`PairBoxes.every` of this light in the context's scene, made once (the memo's
+        key holds what they read: the scene, the origin, the receivers, the shadow parameters)."""
+        if pad_texels not in self._pairs:
+            self._pairs[pad_texels] = PairBoxes.every(self.light, ctx.bounds, ctx.receive,
+                                                      pad_texels)
+        return self._pairs[pad_texels]
 
     def refit(self, ctx: PlanContext) -> LightShadow | None:
         """The kept plan for the view of ``ctx``, with what its receivers want
         (:attr:`LightShadow.needed`, of the last size asked), or None when a size differs."""
         needed = self.light.needed
-        for w, r, c, t, size in self.sizes:
-            got, needed = ctx.map_size_and_need(w, r, c, t)
-            if got != size:
+        for read in self.sizes:
+            got, needed = ctx.map_size_and_need(read.world, read.receivers, read.cube,
+                                                read.toward, read.stretch)
+            if got != read.size:
                 return None
         return dataclasses.replace(self.light, needed=needed)
 
 
 def _plan_scene_fit(ctx: PlanContext, scene: Scene, index: int, light: Light,
-                    memo: BoundedCache[SceneFitPlan] | None) -> LightShadow:
-    """:func:`plan_light` in a scene-fit context, through ``memo`` where one is given."""
+                    memo: BoundedCache[SceneFitPlan] | None
+                    ) -> tuple[LightShadow, SceneFitPlan | None]:
+    """:func:`plan_light` in a scene-fit context, through ``memo`` where one is given; and the
+    memo's entry, where the light's plan is kept."""
     key = scene_fit_key(ctx, scene, index, light) if memo is not None else ""
     if memo is None or not key:
-        return plan_light(ctx, index, light)
+        return plan_light(ctx, index, light), None
     kept = memo.get(key)
     if kept is not None:
         light_plan = kept.refit(ctx)
         if light_plan is not None:
-            return light_plan
+            return light_plan, kept
         memo.discard(key)  # this view wants another map size: planned again, kept instead
-    sizes: list[tuple[float, np.ndarray, bool, Toward | None, int]] = []
+    sizes: list[SizeRead] = []
     planned = plan_light(dataclasses.replace(ctx, sizes_read=sizes), index, light)
     # A frustum (a point light far from the scene: fit.choose_method) reads the camera for its
     # resolution warning, as a spot's does: planned every time.
-    if planned.kind != "perspective":
-        memo.put(key, SceneFitPlan(planned, tuple(sizes)))
-    return planned
+    if planned.kind == "perspective":
+        return planned, None
+    kept = SceneFitPlan(planned, tuple(sizes))
+    memo.put(key, kept)
+    return planned, kept
 
 
-def _shadow_region(ctx: PlanContext, planned: list[LightShadow], visible: np.ndarray
-                   ) -> tuple[list[LightShadow], ShadowRegion]:
+def _shadow_region(ctx: PlanContext, planned: list[LightShadow], visible: np.ndarray,
+                   kept: list[SceneFitPlan | None]) -> tuple[list[LightShadow], ShadowRegion]:
     """Where the lights' lookups may shade (:mod:`.shadow_region`), and the lights again, less
     the passes of those whose shadows reach no visible pixel (kept when their light-depth image
-    is asked for)."""
+    is asked for). ``kept``: per light, its scene-fit memo entry or None."""
     shadows = ctx.params.shadows
     reach = lookup_reach(shadows.pcf_kernel // 2 if shadows.filter == "pcf" else 0,
                          shadows.bias.normal_offset)
     camera = ctx.camera
+    pairs = [None if k is None or lp.kind is None else k.pairs(ctx, reach)
+             for lp, k in zip(planned, kept, strict=True)]
     reached, region = plan_region(planned, ctx.bounds, visible, ctx.receive,
                                   view_projection(camera, ctx.origin), camera.width,
-                                  camera.height, reach)
+                                  camera.height, reach, pairs)
     if "light_depth" in ctx.params.outputs:  # the light's picture is asked for: keep its pass
         return planned, region
     return [LightShadow(index=lp.index, light=lp.light, position=lp.position,

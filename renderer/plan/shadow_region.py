@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .geometry import box_corners, corner_max, corner_min
+from .instances import _frozen
 
 if TYPE_CHECKING:  # the camera imports this package: types only, no import cycle
     from ..camera import Camera
@@ -490,9 +491,52 @@ def pair_boxes(light: LightShadow, bounds: np.ndarray, receivers: np.ndarray,
     return flat[live], np.tile(np.arange(r, dtype=np.intp), c)[live]
 
 
+@dataclass(frozen=True)
+class PairBoxes:
+    """A light's swept (caster, receiver) boxes (:func:`pair_boxes`) over every receiver of the
+    scene, from which a view takes its visible receivers' (:meth:`of`).
+
+    A map shared by every view (``shadows.fit: "scene"``) has the same casters and texels in
+    each, so its pairs' boxes are the same too: a view selects them instead of sweeping again.
+    Only where the pairs are swept one by one (:data:`MAX_PAIRS`): then a view's selection is
+    what :func:`pair_boxes` gives its receivers, box for box.
+
+    Attributes
+    ----------
+    boxes : ndarray, shape (P, 2, 3)
+    receiver : ndarray, shape (P,), intp
+        Each box's receiver, as an instance index.
+    """
+
+    boxes: np.ndarray
+    receiver: np.ndarray
+
+    @classmethod
+    def every(cls, light: LightShadow, bounds: np.ndarray, receive: np.ndarray,
+              pad_texels: float) -> PairBoxes | None:
+        """The pairs of every receiver (``receive``, shape (N,), bool) with the light's casters;
+        None where there are too many to sweep one by one."""
+        receivers = np.flatnonzero(receive)
+        casters = len(set().union(*(m.casters for m in light.maps)))
+        if (1 if casters > MAX_PAIRS else casters) * len(receivers) > MAX_PAIRS:
+            return None
+        boxes, which = pair_boxes(light, bounds, receivers, pad_texels)
+        return cls(_frozen(boxes), _frozen(receivers[which]))
+
+    def of(self, receivers: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`pair_boxes` for ``receivers`` (R,), instance indices among ``count``: the
+        boxes of their pairs (in another order) and each one's position in ``receivers``."""
+        position = np.full(count, -1, np.intp)
+        position[receivers] = np.arange(len(receivers))
+        which = position[self.receiver]
+        keep = which >= 0
+        return self.boxes[keep], which[keep]
+
+
 def plan_region(lights: list[LightShadow], bounds: np.ndarray, visible: np.ndarray,
                 receive: np.ndarray, view_proj: np.ndarray, width: int, height: int,
-                pad_texels: float) -> tuple[list[bool], ShadowRegion]:
+                pad_texels: float, pairs: list[PairBoxes | None] | None = None
+                ) -> tuple[list[bool], ShadowRegion]:
     """Where each light's lookups may shade on screen, and how the camera pass draws around it.
 
     Every box is projected in one call: the swept boxes of every light's pairs and the visible
@@ -511,6 +555,9 @@ def plan_region(lights: list[LightShadow], bounds: np.ndarray, visible: np.ndarr
         Origin-relative world to the camera's clip space (:func:`view_projection`).
     pad_texels : float
         See :func:`lookup_reach`.
+    pairs : list of PairBoxes or None, optional
+        Per light, its pairs over every receiver where they are kept (a scene-fit map's), else
+        None: the light's pairs are swept here. The region is the same either way.
 
     Returns
     -------
@@ -521,8 +568,11 @@ def plan_region(lights: list[LightShadow], bounds: np.ndarray, visible: np.ndarr
     """
     visible = np.asarray(visible, np.intp)
     receivers = visible[receive[visible]]
-    parts = [pair_boxes(lp, bounds, receivers, pad_texels) if lp.kind is not None
-             else (np.zeros((0, 2, 3)), np.zeros(0, np.intp)) for lp in lights]
+    kept = pairs if pairs is not None else [None] * len(lights)
+    parts = [(np.zeros((0, 2, 3)), np.zeros(0, np.intp)) if lp.kind is None
+             else pair_boxes(lp, bounds, receivers, pad_texels) if pk is None
+             else pk.of(receivers, len(bounds))
+             for lp, pk in zip(lights, kept, strict=True)]
     own = receivers if len(receivers) <= MAX_SPLIT_RECEIVERS else receivers[:0]
     boxes = np.concatenate([b for b, _ in parts] + [bounds[own]])
     rects = screen_rects(boxes, view_proj, width, height)
