@@ -31,6 +31,7 @@ Run: ``PYTHONPATH=. .venv/bin/python bench/batch_throughput.py [--quick] [--repe
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 import statistics
@@ -91,9 +92,15 @@ def time_batches(backends: dict[str, object], manifest: Path, work: Path, repeat
     return out
 
 
+#: The renderer's stages a view's ``meta.json`` times, shown per view in the multi-view table.
+STAGES = ("plan", "light", "camera", "readback")
+
+
 def multiview(repeats: int, width: int, height: int) -> dict[str, list[float]]:
     """Worker seconds per view of: 16 views with a light pass each, 16 sharing one, 1 unshadowed
-    view, and the same 16 views unshadowed."""
+    view, and the same 16 views unshadowed; under ``"<job>/<stage>"``, seconds per view of each
+    of :data:`STAGES` (from the views' ``meta.json``) and of ``files``: the worker's time
+    outside the renders (the views' PNG and ``meta.json``)."""
     duck = C.models_dir() / "Duck.glb"
     views = [{"eye": [3.2 * math.cos(a), 2.2, 3.2 * math.sin(a)], "target": [0, 0.6, 0]}
              for a in (2 * math.pi * k / VIEWS for k in range(VIEWS))]
@@ -136,7 +143,14 @@ def multiview(repeats: int, width: int, height: int) -> dict[str, list[float]]:
                 assert outcome.ok, outcome.error
                 cached[name] = outcome.light_passes_cached
                 if round_:
-                    out[name].append(outcome.seconds / len(t.variations))
+                    count = len(t.variations)
+                    out[name].append(outcome.seconds / count)
+                    metas = [json.loads(outcome.files[f"{v}/meta.json"]) for v, _ in t.variations]
+                    for stage in STAGES:
+                        out.setdefault(f"{name}/{stage}", []).append(
+                            sum(m["timings"].get(stage, 0.0) for m in metas) / count)
+                    out.setdefault(f"{name}/files", []).append(
+                        (outcome.seconds - outcome.render_seconds) / count)
         out["_info"] = [float(cached["16 views, fit scene"]), float(cached["16 views, fit view"])]
     finally:
         runner.close()
@@ -243,12 +257,16 @@ def run(quick: bool, repeats: int, pools: tuple[int, ...] = (1, 2), with_ray: bo
     for name in ("16 views, fit view", "16 views, fit scene", "1 view, no shadow",
                  "16 views, no shadow"):
         per_view = statistics.median(mv[name])
+        stages = {k: statistics.median(mv[f"{name}/{k}"]) for k in (*STAGES, "files")}
         mv_rows.append([name, C.fmt(per_view * 1000, 1), C.fmt(per_view / unshadowed, 2),
-                        C.fmt(per_view / same_views, 2)])
+                        C.fmt(per_view / same_views, 2),
+                        *(C.fmt(v * 1000, 2) for v in stages.values())])
         csv_rows.append({"backend": "multiview", "case": name,
-                         "ms_per_view": round(per_view * 1000, 3)})
+                         "ms_per_view": round(per_view * 1000, 3),
+                         **{f"{k}_ms": round(v * 1000, 3) for k, v in stages.items()}})
     mv_table = C.markdown_table(["job", "ms per view", "× one unshadowed view",
-                                 "× the same 16 views unshadowed"], mv_rows)
+                                 "× the same 16 views unshadowed",
+                                 *(f"{k} ms" for k in (*STAGES, "files"))], mv_rows)
     size = "640×480" if not quick else "320×240"
     md = (
         "# Batch throughput\n\n"
@@ -260,6 +278,9 @@ def run(quick: bool, repeats: int, pools: tuple[int, ...] = (1, 2), with_ray: bo
         f"Writing one job's files and its record in the driver: {driver_write * 1000:.2f} ms.\n\n"
         f"## One job, {VIEWS} views (Duck on a ground, {size}, colour)\n\n"
         f"{mv_table}\n\n"
+        "Per view, medians over the runs: the renderer's stages (`RenderResult.timings`, from "
+        "each view's `meta.json`; *plan* includes resolving the camera) and *files*, the "
+        "worker's time outside the renders (each view's PNG and `meta.json`).\n\n"
         f"With `fit: \"scene\"` {int(mv['_info'][0])} of the {VIEWS} light passes came from the "
         f"cache ({int(mv['_info'][1])} with `fit: \"view\"`).\n\n"
         f"{footer}\n"
