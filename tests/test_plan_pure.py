@@ -933,3 +933,21 @@ def test_the_longest_edge_of_a_primitive():
     prim = scene_from_meshes([T._plane(4.0)]).primitives[0]
     assert primitive_edge(prim) == pytest.approx(4.0 * math.sqrt(2.0))
     assert primitive_edge(prim) == primitive_edge(prim)  # cached
+
+
+@pytest.mark.parametrize(("lights", "shadows", "clips"), [
+    ([SUN], {}, 1),  # fitted to the view: what the camera sees of the receivers is read
+    ([SUN], {"fit": "scene"}, 0),  # a map over every receiver reads none of it
+    ([{**SUN, "cast_shadows": False}], {}, 0),  # no shadow: nothing to fit
+    ([POINT, SPOT_40], {}, 1),  # clipped once however many lights read it
+])
+def test_the_receivers_are_clipped_to_the_view_only_for_a_fit_that_reads_them(
+        monkeypatch, lights, shadows, clips):
+    from shadowmap.renderer.plan import context
+
+    calls = []
+    clip = context._clip_seen
+    monkeypatch.setattr(context, "_clip_seen", lambda *a: calls.append(1) or clip(*a))
+    p = plan(T.caster_on_ground(), lights=lights, shadows=shadows)
+    assert len(calls) == clips
+    assert any(lp.kind is not None for lp in p.lights) == (lights[0].get("cast_shadows", True))
