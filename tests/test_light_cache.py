@@ -124,6 +124,32 @@ def test_scene_fit_views_take_their_shadow_regions_pairs_from_the_memo(make):
     assert pairs is not None and len(pairs.boxes) > 0
 
 
+def test_a_scene_fit_plan_keeps_no_more_pairs_than_its_bound(monkeypatch):
+    # Past MAX_KEPT_PAIRS (caster, receiver) pairs the kept plan holds none, and each view
+    # sweeps its own: the region is the same.
+    from shadowmap.renderer.cache import BoundedCache
+    from shadowmap.renderer.plan import shadow_region
+
+    monkeypatch.setattr(shadow_region, "MAX_KEPT_PAIRS", 100)
+    scene = T.many_small_objects(60)
+    lo, hi = scene.bounds
+    centre = (lo + hi) / 2
+    memo: BoundedCache = BoundedCache(8)
+    for yfov in (40.0, 50.0):
+        p = RenderParams.model_validate({"width": 640, "height": 480, "camera": {
+            "eye": (centre + [40.0, 30.0, 40.0]).tolist(), "target": centre.tolist(),
+            "yfov_deg": yfov}, "shadows": {"fit": "scene", "map_size": 1024}})
+        cam = resolve_camera(p.camera, scene, p.width, p.height)
+        lights = resolve_lights(p.lights, scene)
+        with_memo = make_plan(scene, cam, lights, centre, p, memo)
+        fresh = make_plan(scene, cam, lights, centre, p)
+        assert with_memo.shadow_region is not None
+        assert with_memo.to_dict() == fresh.to_dict()
+        assert np.array_equal(with_memo.shadow_region.classes, fresh.shadow_region.classes)
+    (kept,) = memo.values()
+    assert list(kept._pairs.values()) == [None]
+
+
 def test_view_fit_follows_the_camera(demo):
     a, b = (plan_of(demo, orbit(k, fit="view")).lights[0] for k in (0, 2))
     assert not np.array_equal(a.proj, b.proj)

@@ -33,6 +33,10 @@ if TYPE_CHECKING:  # the camera imports this package: types only, no import cycl
 #: Caster-receiver pairs tested one by one at most; past that each caster is tested against the
 #: box around all visible receivers (looser, never wrong).
 MAX_PAIRS = 20_000
+#: Pairs whose swept boxes a scene-fitted light's kept plan holds at most (:class:`PairBoxes`,
+#: about 200 KB): the renderer keeps up to four such plans per scene cache entry, so past this
+#: each view sweeps its own pairs again instead.
+MAX_KEPT_PAIRS = 4096
 #: Texels beyond the PCF radius that a lookup may read from a caster: the gathered footprint's
 #: half texel plus half a texel of rounding.
 LOOKUP_REACH_TEXELS = 2.0
@@ -515,10 +519,11 @@ class PairBoxes:
     def every(cls, light: LightShadow, bounds: np.ndarray, receive: np.ndarray,
               pad_texels: float) -> PairBoxes | None:
         """The pairs of every receiver (``receive``, shape (N,), bool) with the light's casters;
-        None where there are too many to sweep one by one."""
+        None where there are more than :data:`MAX_KEPT_PAIRS` (a view's own pairs are then
+        swept one by one, or together past :data:`MAX_PAIRS`)."""
         receivers = np.flatnonzero(receive)
         casters = len(set().union(*(m.casters for m in light.maps)))
-        if (1 if casters > MAX_PAIRS else casters) * len(receivers) > MAX_PAIRS:
+        if (1 if casters > MAX_PAIRS else casters) * len(receivers) > MAX_KEPT_PAIRS:
             return None
         boxes, which = pair_boxes(light, bounds, receivers, pad_texels)
         return cls(_frozen(boxes), _frozen(receivers[which]))
