@@ -407,20 +407,21 @@ class PlanContext:
         near = float(max(np.min(d), self.camera.znear))
         if toward is None or self.arrays is None:
             return near, None
-        if self.any_view and len(d) <= MAX_STRETCH_RECEIVERS:
+        receivers = np.asarray(receivers)
+        if self.any_view:
             # A map every view shares weighs every receiver the same, as any view could see it:
             # its size then follows the camera only by the nearest distance, as without faces.
-            if stretch is None:
-                stretch = self._any_view_stretch(np.asarray(receivers), toward)
-            return near / stretch, stretch
-        cand = np.flatnonzero(d < near * MAX_TEXEL_STRETCH) if not self.any_view else np.arange(
-            len(d))
+            if len(d) <= MAX_STRETCH_RECEIVERS:
+                if stretch is None:
+                    stretch = self._any_view_stretch(receivers, toward)
+                return near / stretch, stretch
+            nearest = np.argpartition(d, MAX_STRETCH_RECEIVERS - 1)[:MAX_STRETCH_RECEIVERS]
+            return near / self._any_view_stretch(receivers[nearest], toward), None
+        cand = np.flatnonzero(d < near * MAX_TEXEL_STRETCH)
         if len(cand) > MAX_STRETCH_RECEIVERS:
             cand = cand[np.argpartition(d[cand], MAX_STRETCH_RECEIVERS - 1)
                         [:MAX_STRETCH_RECEIVERS]]
-        idx = np.asarray(receivers)[cand]
-        if self.any_view:  # the nearest receivers, as in the branch above
-            return near / self._any_view_stretch(idx, toward), None
+        idx = receivers[cand]
         owner, normal = self.arrays.patch_normals(idx)
         if len(owner) == 0:
             return near, None

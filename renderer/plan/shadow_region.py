@@ -519,11 +519,11 @@ class PairBoxes:
     def every(cls, light: LightShadow, bounds: np.ndarray, receive: np.ndarray,
               pad_texels: float) -> PairBoxes | None:
         """The pairs of every receiver (``receive``, shape (N,), bool) with the light's casters;
-        None where there are more than :data:`MAX_KEPT_PAIRS` (a view's own pairs are then
-        swept one by one, or together past :data:`MAX_PAIRS`)."""
+        None where there are more than :data:`MAX_KEPT_PAIRS` (a view then sweeps its own; below
+        :data:`MAX_PAIRS` every pair is swept one by one, so a view's selection is what
+        :func:`pair_boxes` gives it)."""
         receivers = np.flatnonzero(receive)
-        casters = len(set().union(*(m.casters for m in light.maps)))
-        if (1 if casters > MAX_PAIRS else casters) * len(receivers) > MAX_KEPT_PAIRS:
+        if len(set().union(*(m.casters for m in light.maps))) * len(receivers) > MAX_KEPT_PAIRS:
             return None
         boxes, which = pair_boxes(light, bounds, receivers, pad_texels)
         return cls(_frozen(boxes), _frozen(receivers[which]))
