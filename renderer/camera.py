@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import RequestError, SceneError
 from .params import CameraParams
-from .plan.geometry import look_at, ortho, perspective
+from .plan.geometry import look_at, ortho, perspective, row_norm
 from .plan.instances import primitive_edge, scene_arrays, scene_box  # Scene.bounds, once per scene
 from .scene import Scene, instance_arrays
 
@@ -195,8 +195,7 @@ def orthonormalize_pose(matrix: np.ndarray, what: str) -> np.ndarray:
 def nearest_box_distances(scene: Scene, eye: np.ndarray) -> np.ndarray:
     """Distance from ``eye`` to each instance's box (N,), float64: 0 for a box holding it."""
     bounds = scene_arrays(scene).bounds  # (N, 2, 3)
-    gap = np.maximum(np.maximum(bounds[:, 0] - eye, eye - bounds[:, 1]), 0.0)
-    return np.sqrt((gap * gap).sum(axis=1))
+    return row_norm(np.maximum(np.maximum(bounds[:, 0] - eye, eye - bounds[:, 1]), 0.0))
 
 
 def _auto_near(scene: Scene, eye: np.ndarray, sphere_near: float, zfar: float) -> float:
@@ -214,10 +213,14 @@ def _auto_near(scene: Scene, eye: np.ndarray, sphere_near: float, zfar: float) -
     return znear
 
 
-def _boxes_ahead(camera: Camera, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+BoxesAhead = tuple[np.ndarray, np.ndarray]
+
+
+def boxes_ahead(camera: Camera, scene: Scene) -> BoxesAhead:
     """Each instance box's distance from the eye (N,), and whether it lies ahead of the camera
     and does not hold the eye (N,) bool (a box around the eye says nothing of where its
-    surfaces lie)."""
+    surfaces lie). :func:`near_clip_warning` and :func:`view_origin` both read them: a caller
+    of both works them out once and hands them to each."""
     eye = camera.position
     d = nearest_box_distances(scene, eye)
     bounds = scene_arrays(scene).bounds
@@ -225,14 +228,16 @@ def _boxes_ahead(camera: Camera, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return d, ((centre - eye) @ -camera.pose[:3, 2] > 0.0) & (d > 0.0)
 
 
-def near_clip_warning(camera: Camera, scene: Scene, params: CameraParams | None) -> str:
+def near_clip_warning(camera: Camera, scene: Scene, params: CameraParams | None,
+                      ahead: BoxesAhead | None = None) -> str:
     """A warning when the automatic near plane clips geometry in front of the camera: an
     instance box (not one around the eye) that lies wholly nearer than it, ahead of the eye.
-    Empty when the request gave ``znear``."""
+    Empty when the request gave ``znear``. ``ahead``: :func:`boxes_ahead`, when the caller has
+    it."""
     if params is not None and params.znear is not None:
         return ""
-    d, ahead = _boxes_ahead(camera, scene)
-    clipped = ahead & (d < camera.znear)
+    d, front = boxes_ahead(camera, scene) if ahead is None else ahead
+    clipped = front & (d < camera.znear)
     if not clipped.any():
         return ""
     return (f"camera: the automatic near plane at {camera.znear:.3g} units (it comes no nearer "
@@ -295,7 +300,8 @@ def _own_reach(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return out
 
 
-def view_origin(camera: Camera, scene: Scene, centre: np.ndarray) -> ViewOrigin:
+def view_origin(camera: Camera, scene: Scene, centre: np.ndarray,
+                ahead: BoxesAhead | None = None) -> ViewOrigin:
     """The origin of a view's GPU coordinates: the scene's centre unless this camera looks so
     closely at geometry so far from it that a pixel there is finer than float32 places positions
     (jagged edges, noisy shading and shadows); then a point beside the eye, where the view's
@@ -308,9 +314,10 @@ def view_origin(camera: Camera, scene: Scene, centre: np.ndarray) -> ViewOrigin:
     where ``own`` is the larger of the instance's longest triangle edge (a varying is
     interpolated from the triangle's vertices) and the reach of its local coordinates (a mesh
     far from its own origin). Shortfalls from the eye's origin are said in the warning.
+    ``ahead``: :func:`boxes_ahead`, when the caller has it.
     """
-    d, ahead = _boxes_ahead(camera, scene)
-    idx = np.flatnonzero(ahead)
+    d, front = boxes_ahead(camera, scene) if ahead is None else ahead
+    idx = np.flatnonzero(front)
     if not len(idx):
         return ViewOrigin(centre, "scene_centre")
     near = np.maximum(d[idx], camera.znear)

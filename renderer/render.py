@@ -26,6 +26,7 @@ import numpy as np
 from .cache import BoundedCache, content_key, parts_key
 from .camera import (
     Camera,
+    boxes_ahead,
     near_clip_warning,
     orthonormalize_pose,
     resolve_camera,
@@ -524,7 +525,8 @@ class Renderer:
         check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
         t = time.perf_counter()
         camera = resolve_camera(params.camera, scene, params.width, params.height)
-        clipped = near_clip_warning(camera, scene, params.camera)
+        ahead = boxes_ahead(camera, scene)
+        clipped = near_clip_warning(camera, scene, params.camera, ahead)
         if clipped:
             warnings.append(clipped)
         lights = base.lights()
@@ -537,7 +539,7 @@ class Renderer:
             lt.position for lt in lights if lt.type != "directional"], scene_placed=True)
         # A view that looks closely at a part far from the centre is drawn relative to a point
         # beside its eye instead (GpuScene.set_origin).
-        placed = view_origin(camera, scene, origin)
+        placed = view_origin(camera, scene, origin, ahead)
         if placed.warning:
             warnings.append(placed.warning)
         origin = placed.origin

@@ -17,14 +17,21 @@ from shadowmap.renderer.lights import resolve_lights
 from shadowmap.renderer.plan import culling, instances, make_plan
 from shadowmap.renderer.plan.context import PlanContext
 from shadowmap.renderer.plan.geometry import (
+    SLICE_ROWS,
     aabbs_in_frustum,
     box_corners,
     boxes_in_frustum,
+    column_max,
+    column_min,
     corner_max,
     corner_min,
     frustum_planes,
     look_at,
     perspective,
+    row_norm,
+    slice_max,
+    slice_min,
+    slice_sum,
 )
 from shadowmap.renderer.scene import Instance, Scene, scene_from_meshes, world_bounds
 
@@ -238,10 +245,34 @@ def test_aabbs_in_frustum_equals_the_corner_test():
                                       boxes_in_frustum(box_corners(bounds), planes, frustum))
 
 
-def test_corner_min_and_max():
-    a = np.random.default_rng(1).normal(size=(50, 8, 3))
+@pytest.mark.parametrize("rows", [0, 1, 50, SLICE_ROWS - 1, SLICE_ROWS, 3 * SLICE_ROWS + 5])
+def test_short_axis_reductions_give_numpys_values(rows: int):
+    """Below SLICE_ROWS numpy's own reduction, from it one slice or column at a time: the same
+    values either way, NaN and signed zeros included."""
+    rng = np.random.default_rng(rows)
+    a = rng.normal(size=(rows, 8, 3))
+    if rows > 3:
+        a[1, 2, 0], a[2, :, 1], a[3, 0, :] = np.nan, -0.0, np.inf
     np.testing.assert_array_equal(corner_min(a), a.min(axis=1))
     np.testing.assert_array_equal(corner_max(a), a.max(axis=1))
+    np.testing.assert_array_equal(slice_min(a, 2), a.min(axis=2))
+    np.testing.assert_array_equal(slice_max(a, -1), a.max(axis=-1))
+    flags = a > 0
+    np.testing.assert_array_equal(slice_max(flags, 1), flags.any(axis=1))
+    points = a[:, 0]  # (N, 3)
+    np.testing.assert_array_equal(slice_sum(points, 1), points.sum(axis=1))
+    np.testing.assert_array_equal(row_norm(points), np.linalg.norm(points, axis=1))
+    np.testing.assert_array_equal(column_min(points, np.inf), points.min(axis=0, initial=np.inf))
+    np.testing.assert_array_equal(column_max(points, -np.inf),
+                                  points.max(axis=0, initial=-np.inf))
+    ints = rng.integers(-9, 9, size=(rows, 4))
+    assert column_min(ints, 99).dtype == ints.dtype
+    np.testing.assert_array_equal(column_min(ints, 99), ints.min(axis=0, initial=99))
+    if rows:
+        np.testing.assert_array_equal(column_max(ints), ints.max(axis=0))
+    else:
+        with pytest.raises(ValueError):  # no initial value: an empty column has no maximum
+            column_max(ints)
 
 
 # -- the per-scene cache -----------------------------------------------------------------------

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .culling import view_planes
-from .geometry import aabbs_against_frustum, clip_boxes, texel_stretch
+from .geometry import aabbs_against_frustum, clip_boxes, row_norm, texel_stretch
 from .instances import Planes, SceneArrays, scene_arrays
 
 if TYPE_CHECKING:  # the camera imports this package: types only, no import cycle
@@ -51,7 +51,7 @@ class Toward:
         if not self.positional:
             return np.broadcast_to(self.vector, points.shape)
         d = self.vector - points
-        length = np.sqrt((d * d).sum(axis=1))[:, None]
+        length = row_norm(d)[:, None]
         return np.divide(d, length, out=np.zeros_like(d), where=length > 0)
 
 
@@ -403,7 +403,7 @@ class PlanContext:
         depend on the camera (else None)."""
         if self.texel_distance is not None:
             return float(self.view_distance(self.texel_distance)), None
-        d = self.view_distance(np.linalg.norm(self.centres[receivers] - self.cam_pos, axis=1))
+        d = self.view_distance(row_norm(self.centres[receivers] - self.cam_pos))
         near = float(max(np.min(d), self.camera.znear))
         if toward is None or self.arrays is None:
             return near, None
@@ -429,7 +429,7 @@ class PlanContext:
         # The direction pixels look along: from the eye, or the view axis (orthographic).
         view = (centre - self.cam_pos if self.flat_distance is None
                 else np.broadcast_to(self.camera.forward, centre.shape))
-        length = np.sqrt((view * view).sum(axis=1))
+        length = row_norm(view)
         ok = length > 0
         if not ok.any():
             return near, None

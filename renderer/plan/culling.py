@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .geometry import frustum_planes, thin_matmul
+from .geometry import column_max, column_min, frustum_planes, thin_matmul
 
 if TYPE_CHECKING:  # the camera and lights import this package: types only, no import cycle
     from ..camera import Camera
@@ -167,7 +167,7 @@ def _on_light_side(bounds: np.ndarray, idx: np.ndarray, toward: np.ndarray, p0: 
     offset = (p0 * toward).sum(axis=1)  # (K,): p0 . toward
     lo, hi = bounds[receivers, 0], bounds[receivers, 1]  # (R, 3)
     # 1. Nothing is behind a plane whose light side holds the box around every receiver.
-    common = _support_min(lo.min(axis=0)[None], hi.max(axis=0)[None], toward)[0]
+    common = _support_min(column_min(lo)[None], column_max(hi)[None], toward)[0]
     result = common - offset >= -tol
     undecided = ~result
     # 2. A receiver (not the plane itself) behind the plane decides against it.

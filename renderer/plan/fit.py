@@ -29,6 +29,10 @@ from .geometry import (
     CUBE_FACES,
     boxes_in_frustum,
     clip_boxes,
+    column_max,
+    column_min,
+    corner_max,
+    corner_min,
     cube_face_views,
     face_meets_cone,
     frustum,
@@ -37,6 +41,8 @@ from .geometry import (
     perspective,
     pose_from_direction,
     pyramid_planes,
+    row_norm,
+    slice_max,
     transform_boxes,
     transform_points,
 )
@@ -233,8 +239,8 @@ def reach_directional(ctx: PlanContext, s: Subject) -> DirectionalReach:
     # casters over it laterally and nearer the light. The window holds every seen receiver point.
     seen = _seen_light_points(ctx, view)
     whole = ctx.seen.whole
-    r_lo = np.minimum(lo[whole].min(axis=0, initial=np.inf), seen.min(axis=0, initial=np.inf))
-    r_hi = np.maximum(hi[whole].max(axis=0, initial=-np.inf), seen.max(axis=0, initial=-np.inf))
+    r_lo = np.minimum(column_min(lo[whole], np.inf), column_min(seen, np.inf))
+    r_hi = np.maximum(column_max(hi[whole], -np.inf), column_max(seen, -np.inf))
     x0, y0 = r_lo[:2]
     x1, y1 = r_hi[:2]
     far = float(-r_lo[2])  # the deepest seen receiver point (light depth is -z)
@@ -255,8 +261,8 @@ def fit_directional(ctx: PlanContext, s: Subject, reach: DirectionalReach,
     the filter margin."""
     x0, y0, x1, y1 = reach.window
     # A directional shadow falls straight along the light: only where casters are, laterally.
-    x0, y0 = np.maximum([x0, y0], reach.lo[fit, :2].min(axis=0))
-    x1, y1 = np.minimum([x1, y1], reach.hi[fit, :2].max(axis=0))
+    x0, y0 = np.maximum([x0, y0], column_min(reach.lo[fit, :2]))
+    x1, y1 = np.minimum([x1, y1], column_max(reach.hi[fit, :2]))
     if x1 <= x0 or y1 <= y0:
         return Skip("no_caster_in_frustum")
     near = _caster_near(ctx, reach, fit, (x0, x1, y0, y1))
@@ -396,8 +402,8 @@ def reach_spot(ctx: PlanContext, s: Subject) -> SpotReach | Skip:
     # Receivers inside the cone's bounding pyramid: fit the frustum to their angular extent.
     if np.all(-rc[:, 2] > 0):
         ang = rc[:, :2] / (-rc[:, 2:3])
-        a_lo = np.maximum(ang.min(axis=0), -tan_cone)
-        a_hi = np.minimum(ang.max(axis=0), tan_cone)
+        a_lo = np.maximum(column_min(ang), -tan_cone)
+        a_hi = np.minimum(column_max(ang), tan_cone)
     else:  # a receiver straddles the light's plane: cover the whole cone
         a_lo = np.array([-tan_cone, -tan_cone])
         a_hi = np.array([tan_cone, tan_cone])
@@ -405,7 +411,8 @@ def reach_spot(ctx: PlanContext, s: Subject) -> SpotReach | Skip:
         return Skip("no_visible_receiver")
     # Casters inside the fitted pyramid (conservative: boxes against its four side planes).
     in_frustum = boxes_in_frustum(lc, pyramid_planes(a_lo, a_hi))
-    depth_min = np.where(np.all(depth > 0, axis=1), depth.min(axis=1), 0.0)
+    nearest = corner_min(depth)
+    depth_min = np.where(nearest > 0, nearest, 0.0)  # 0 where a corner is behind the light
     return SpotReach(in_frustum=in_frustum, depth_min=depth_min, far=far, view=view, lc=lc,
                      depth=depth, a_lo=a_lo, a_hi=a_hi)
 
@@ -419,8 +426,8 @@ def fit_spot(ctx: PlanContext, s: Subject, reach: SpotReach, fit: np.ndarray) ->
     cc = reach.lc[fit].reshape(-1, 3)
     if np.all(-cc[:, 2] > 0):
         ang = cc[:, :2] / (-cc[:, 2:3])
-        a_lo = np.maximum(a_lo, ang.min(axis=0))
-        a_hi = np.minimum(a_hi, ang.max(axis=0))
+        a_lo = np.maximum(a_lo, column_min(ang))
+        a_hi = np.minimum(a_hi, column_max(ang))
         if np.any(a_hi <= a_lo):
             return Skip("no_caster_in_frustum")
     caster_near = float(reach.depth_min[fit].min() * 0.999)
@@ -461,7 +468,7 @@ def _pyramid_far(ctx: PlanContext, reach: SpotReach, receivers: np.ndarray, a_lo
     in the pyramid, a box no deeper cannot move the bound, and at thousands of instances the
     rest are never tested.
     """
-    deepest = reach.depth[receivers].max(axis=1)
+    deepest = corner_max(reach.depth[receivers])
     far = -np.inf
     rest = np.arange(len(receivers))
     if len(rest) > PYRAMID_FIRST:
@@ -531,11 +538,11 @@ def reach_cube(ctx: PlanContext, s: Subject) -> CubeReach | Skip:
     """The faces that meet the cone (spots) and, with ``optimize``, show a visible receiver; a
     skip when none does."""
     light, position = s.light, s.position
-    cheb = np.abs(ctx.corners - position).max(axis=2)  # (N, 8)
+    cheb = slice_max(np.abs(ctx.corners - position), 2)  # (N, 8)
     # Chebyshev distance from the light to each box (0 when the light is inside it): a box's
     # depth on the face that sees it is at least that.
     gap = np.maximum(np.maximum(ctx.bounds[:, 0] - position, position - ctx.bounds[:, 1]), 0)
-    depth_min = gap.max(axis=1)
+    depth_min = corner_max(gap)
     # The farthest seen receiver point (:class:`~.context.Seen`; Chebyshev distance is convex,
     # so a clipped part's farthest point is one of its vertices).
     seen = np.abs(ctx.seen.points - position).max(axis=1, initial=0.0)
@@ -627,7 +634,7 @@ def _cone(centres: np.ndarray, radius: np.ndarray,
     if len(centres) == 0:
         return None
     delta = centres - position
-    dist = np.sqrt((delta * delta).sum(axis=1))
+    dist = row_norm(delta)
     if not np.all(dist > radius):
         return None
     u = delta / dist[:, None]
@@ -641,8 +648,7 @@ def _cone(centres: np.ndarray, radius: np.ndarray,
 
 
 def _box_radius(ctx: PlanContext, boxes: np.ndarray) -> np.ndarray:
-    half = (ctx.bounds[boxes, 1] - ctx.bounds[boxes, 0]) / 2
-    return np.sqrt((half * half).sum(axis=1))
+    return row_norm((ctx.bounds[boxes, 1] - ctx.bounds[boxes, 0]) / 2)
 
 
 def seen_cone(ctx: PlanContext, position: np.ndarray) -> tuple[np.ndarray, float] | None:

@@ -217,24 +217,85 @@ _AXES = np.arange(3)
 _AXES.flags.writeable = False
 
 
-def corner_min(a: np.ndarray) -> np.ndarray:
-    """The least value over axis 1 (a box's corners), e.g. (N, 8, 3) -> (N, 3).
+# --------------------------------------------------------------------------------------------
+# Reductions over a short axis
+# --------------------------------------------------------------------------------------------
+#
+# numpy reduces an axis of a few elements (a point's 3 coordinates, a box's 8 corners) row by
+# row: at thousands of rows that costs 10 to 30 times as much as one elementwise operation per
+# element of the short axis (numpy 2.4, 10,000 points: 0.30 ms for their least x, y and z
+# against 0.014 ms a column at a time; 0.13 ms for a sum over each point's coordinates against
+# 0.011 ms). The functions below give the values numpy's reduction gives: a least or greatest
+# value rounds nothing, and numpy adds fewer than 8 terms in order.
 
-    The same values as ``a.min(axis=1)`` (a minimum rounds nothing), from one elementwise
-    ``minimum`` per corner: numpy reduces a middle axis several times slower.
-    """
-    out = a[:, 0].copy()
-    for i in range(1, a.shape[1]):
-        np.minimum(out, a[:, i], out=out)
+#: Rows from which the functions below reduce one slice or column at a time; with fewer, one
+#: numpy call costs less than one per slice (a few microseconds each).
+SLICE_ROWS = 128
+
+
+def _by_slices(a: np.ndarray, axis: int, ufunc: np.ufunc) -> np.ndarray:
+    """``ufunc.reduce(a, axis)``, as one elementwise ``ufunc`` per slice along ``axis`` once
+    there are :data:`SLICE_ROWS` results or more."""
+    n = a.shape[axis]
+    if n < 2 or a.size < SLICE_ROWS * n:
+        return ufunc.reduce(a, axis=axis)
+    parts = np.moveaxis(a, axis, 0)
+    out = ufunc(parts[0], parts[1])
+    for k in range(2, n):
+        ufunc(out, parts[k], out=out)
     return out
+
+
+def slice_min(a: np.ndarray, axis: int) -> np.ndarray:
+    """``a.min(axis=axis)`` over a short axis (see :data:`SLICE_ROWS`)."""
+    return _by_slices(a, axis, np.minimum)
+
+
+def slice_max(a: np.ndarray, axis: int) -> np.ndarray:
+    """``a.max(axis=axis)`` over a short axis."""
+    return _by_slices(a, axis, np.maximum)
+
+
+def slice_sum(a: np.ndarray, axis: int) -> np.ndarray:
+    """``a.sum(axis=axis)`` of floats over an axis of fewer than 8 elements, added in order as
+    numpy adds them (up to the sign of a zero sum)."""
+    if a.shape[axis] >= 8:  # numpy adds 8 or more pairwise: another rounding
+        return a.sum(axis=axis)
+    return _by_slices(a, axis, np.add)
+
+
+def row_norm(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(a, axis=1)`` of (N, K) floats (K < 8), shape (N,)."""
+    return np.sqrt(slice_sum(a * a, 1))
+
+
+def corner_min(a: np.ndarray) -> np.ndarray:
+    """The least value over axis 1 (a box's corners), e.g. (N, 8, 3) -> (N, 3)."""
+    return slice_min(a, 1)
 
 
 def corner_max(a: np.ndarray) -> np.ndarray:
     """The greatest value over axis 1 (a box's corners); see :func:`corner_min`."""
-    out = a[:, 0].copy()
-    for i in range(1, a.shape[1]):
-        np.maximum(out, a[:, i], out=out)
-    return out
+    return slice_max(a, 1)
+
+
+def column_min(a: np.ndarray, initial: float | None = None) -> np.ndarray:
+    """``a.min(axis=0)`` (with ``initial``, if given) of (N, K) ``a`` with few columns, shape
+    (K,): one column at a time from :data:`SLICE_ROWS` rows."""
+    return _by_columns(a, np.minimum, initial)
+
+
+def column_max(a: np.ndarray, initial: float | None = None) -> np.ndarray:
+    """``a.max(axis=0)`` of (N, K) ``a``; see :func:`column_min`."""
+    return _by_columns(a, np.maximum, initial)
+
+
+def _by_columns(a: np.ndarray, ufunc: np.ufunc, initial: float | None) -> np.ndarray:
+    # A reduction's ``initial=None`` starts from the first element, as if none were given.
+    if len(a) < SLICE_ROWS:
+        return ufunc.reduce(a, axis=0, initial=initial)
+    return np.array([ufunc.reduce(a[:, k], initial=initial) for k in range(a.shape[1])],
+                    a.dtype)
 
 
 def transform_points(m: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -457,10 +518,10 @@ def clip_boxes(bounds: np.ndarray, planes: np.ndarray, hull: np.ndarray,
         bounding box (a larger part, never a smaller one).
     """
     if len(bounds) > MAX_CLIPPED_BOXES:
-        size = np.max(bounds[:, 1] - bounds[:, 0], axis=1)
+        size = corner_max(bounds[:, 1] - bounds[:, 0])
         order = np.argsort(-size, kind="stable")
         own, rest = order[:MAX_CLIPPED_BOXES], order[MAX_CLIPPED_BOXES:]
-        common = np.stack([bounds[rest, 0].min(axis=0), bounds[rest, 1].max(axis=0)])
+        common = np.stack([column_min(bounds[rest, 0]), column_max(bounds[rest, 1])])
         bounds = np.concatenate([bounds[own], common[None]])
     return _clip_straddling(bounds, planes, hull, tol)
 
@@ -614,18 +675,18 @@ def texel_stretch(normal: np.ndarray, to_light: np.ndarray,
         0 for a face whose side the camera sees is not lit (c at most :data:`FACING_COS`):
         its lookups decide nothing.
     """
-    c = (normal * to_light).sum(axis=1)
+    c = slice_sum(normal * to_light, 1)
     if view is None:
         c = np.abs(c)
         lit = c > FACING_COS
         return np.where(lit, 1.0 / np.where(lit, c, 1.0), 0.0)
-    e = (normal * view).sum(axis=1)
+    e = slice_sum(normal * view, 1)
     # The side the camera sees: its normal points back at the camera (e < 0).
     flip = np.where(e > 0, -1.0, 1.0)
     c, e = c * flip, e * flip
     lit = c > FACING_COS
     c = np.where(lit, c, 1.0)
-    a = (view * to_light).sum(axis=1)
+    a = slice_sum(view * to_light, 1)
     f = 1.0 + a * a + 2.0 * a * (e - c * a) / c + (1.0 - c * c) * (1.0 - a * a) / (c * c)
     p = e / c
     big = (f + np.sqrt(np.maximum(f * f - 4.0 * p * p, 0.0))) / 2.0

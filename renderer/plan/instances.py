@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .geometry import box_corners
+from .geometry import box_corners, column_max, column_min, corner_max, slice_max
 
 if TYPE_CHECKING:  # the scene module is the planner's input: types only
     from ..scene import Instance, Primitive, Scene
@@ -366,9 +366,9 @@ class SceneArrays:
         planes = instance_planes(scene.primitives, insts, prim)
         unlit = np.fromiter((p.material.unlit for p in scene.primitives), bool,
                             len(scene.primitives))[prim]
-        box = np.stack([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
-        step = np.spacing(np.abs(bounds).max(axis=(1, 2))) if n else np.zeros(0)
-        coarse = np.flatnonzero(step * MIN_BOX_STEPS > (bounds[:, 1] - bounds[:, 0]).max(axis=1))
+        box = np.stack([column_min(bounds[:, 0]), column_max(bounds[:, 1])])
+        step = np.spacing(corner_max(slice_max(np.abs(bounds), 2))) if n else np.zeros(0)
+        coarse = np.flatnonzero(step * MIN_BOX_STEPS > corner_max(bounds[:, 1] - bounds[:, 0]))
         return cls(bounds=_frozen(bounds), cast=_frozen(cast), receive=_frozen(receive),
                    primitive=_frozen(prim), unlit=_frozen(unlit), planes=planes,
                    box=_frozen(box),

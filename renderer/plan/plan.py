@@ -35,6 +35,7 @@ from .fit import (
     depth_step,
     texel_at,
 )
+from .geometry import corner_max, corner_min
 from .instances import _frozen
 from .shadow_region import (
     MAX_SPLIT_RECEIVERS,
@@ -632,12 +633,12 @@ def one_sided_casters(ctx: PlanContext, m: LightShadow) -> np.ndarray:
         # light (90-degree faces: within ``near`` on every axis).
         spread = max(1.0, 1.0 / abs(m.proj[0, 0]), 1.0 / abs(m.proj[1, 1]))
         lo, hi = ctx.bounds[casters, 0], ctx.bounds[casters, 1]
-        gap = np.maximum(np.maximum(lo - m.position, m.position - hi), 0.0).max(axis=1)
+        gap = corner_max(np.maximum(np.maximum(lo - m.position, m.position - hi), 0.0))
         beyond = gap > m.near * spread
     else:
         corners = ctx.corners[casters]  # (K, 8, 3)
         depth = -(corners @ m.view[2, :3] + m.view[2, 3])  # view-space depth (K, 8)
-        beyond = depth.min(axis=1) >= m.near
+        beyond = corner_min(depth) >= m.near
     out = np.where(beyond, closure, 0).astype(np.int8)
     return _frozen(out) if out.any() else empty
 

@@ -23,7 +23,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .geometry import box_corners, corner_max, corner_min
+from .geometry import (
+    box_corners,
+    column_max,
+    column_min,
+    corner_max,
+    corner_min,
+    row_norm,
+    slice_max,
+    slice_min,
+)
 from .instances import _frozen
 
 if TYPE_CHECKING:  # the camera imports this package: types only, no import cycle
@@ -273,9 +282,9 @@ def _swept_directional(lo: np.ndarray, hi: np.ndarray, r_lo: np.ndarray, r_hi: n
         s_max = np.where(pos, a, np.where(neg, b, np.inf))
         # An axis the light does not travel along: the boxes overlap on it or never do.
         flat = ~(pos | neg) & ((lo > r_hi) | (hi < r_lo))
-        s0 = np.maximum(s_min.max(axis=-1), 0.0)
-        s1 = s_max.min(axis=-1)
-        s1 = np.where(flat.any(axis=-1), -np.inf, s1)
+        s0 = np.maximum(slice_max(s_min, -1), 0.0)
+        s1 = slice_min(s_max, -1)
+        s1 = np.where(slice_max(flat, -1), -np.inf, s1)
         out_lo = np.maximum(lo + np.minimum(s0[..., None] * u, s1[..., None] * u), r_lo)
         out_hi = np.minimum(hi + np.maximum(s0[..., None] * u, s1[..., None] * u), r_hi)
     empty = (s0 > s1)[..., None]
@@ -310,8 +319,8 @@ def _swept_positional(lo: np.ndarray, hi: np.ndarray, r_lo: np.ndarray, r_hi: np
         lower = np.maximum(np.where(a < 0, ta, -np.inf), np.where(b > 0, tb, -np.inf))
         upper = np.minimum(np.where(a > 0, ta, np.inf), np.where(b < 0, tb, np.inf))
         never = ((a == 0) & (p < 0)) | ((b == 0) & (q > 0))
-        t0 = np.maximum(lower.max(axis=-1), 1.0)
-        t1 = np.where(never.any(axis=-1), -np.inf, upper.min(axis=-1))
+        t0 = np.maximum(slice_max(lower, -1), 1.0)
+        t1 = np.where(slice_max(never, -1), -np.inf, slice_min(upper, -1))
         # t a and t b are linear in t: their extremes over [t0, t1] are at the ends (an
         # unbounded t1 reaches infinity on every side the box extends from the light).
         t0e, t1e = t0[..., None], t1[..., None]
@@ -349,15 +358,14 @@ def swept_bounds(casters: np.ndarray, receivers: np.ndarray, light: LightShadow,
     """
     if len(casters) > MAX_PAIRS:
         # Past that many casters, their box stands in for them (looser, never wrong).
-        casters = np.stack([casters[:, 0].min(axis=0), casters[:, 1].max(axis=0)])[None]
+        casters = np.stack([column_min(casters[:, 0]), column_max(casters[:, 1])])[None]
     lo, hi = casters[:, 0], casters[:, 1]
     maps = light.maps
     positional = light.kind in ("perspective", "cube")
     if positional:
         # A texel's world size grows with the distance to the light: grow each box by the
         # texel at its farthest corner (the sweep scales that pad along with the box).
-        far = np.linalg.norm(np.maximum(np.abs(lo - light.position), np.abs(hi - light.position)),
-                             axis=1)
+        far = row_norm(np.maximum(np.abs(lo - light.position), np.abs(hi - light.position)))
         pad = pad_texels * max(m.texel[1] for m in maps) * far
     else:
         pad = np.full(len(lo), pad_texels * max(m.texel[0] for m in maps))
@@ -365,8 +373,8 @@ def swept_bounds(casters: np.ndarray, receivers: np.ndarray, light: LightShadow,
     if len(casters) * len(receivers) <= MAX_PAIRS:
         r_lo, r_hi = receivers[None, :, 0], receivers[None, :, 1]  # (1, R, 3)
     else:
-        r_lo = receivers[:, 0].min(axis=0)[None, None]
-        r_hi = receivers[:, 1].max(axis=0)[None, None]
+        r_lo = column_min(receivers[:, 0])[None, None]
+        r_hi = column_max(receivers[:, 1])[None, None]
     if positional:
         out_lo, out_hi = _swept_positional(lo, hi, r_lo, r_hi, light.position)
     else:
@@ -404,13 +412,10 @@ def screen_rects(boxes: np.ndarray, view_proj: np.ndarray, width: int, height: i
     clip = corners @ view_proj[:, :3].T + view_proj[:, 3]  # (K, 8, 4)
     # In front of the near plane: z_clip >= -w.
     front = clip[..., 2] + clip[..., 3]  # (K, 8)
-    ahead = front.min(axis=1) >= 0 if k < 256 else corner_min(front[..., None])[:, 0] >= 0
+    ahead = corner_min(front) >= 0
     if ahead.all():
         ndc = clip[..., :2] / clip[..., 3:]  # (K, 8, 2)
-        if k < 256:
-            lo, hi = ndc.min(axis=1), ndc.max(axis=1)
-        else:  # numpy reduces a middle axis slowly: one elementwise pass per corner instead
-            lo, hi = corner_min(ndc), corner_max(ndc)
+        lo, hi = corner_min(ndc), corner_max(ndc)
     else:
         lo, hi = _clipped_extent(clip, front, ahead)
     size = np.array([width, height, width, height], np.float64)
@@ -490,7 +495,7 @@ def pair_boxes(light: LightShadow, bounds: np.ndarray, receivers: np.ndarray,
         if not live.any():
             return np.zeros((0, 2, 3)), np.zeros(0, np.intp)
         sub = flat[live]
-        return (np.stack([sub[:, 0].min(axis=0), sub[:, 1].max(axis=0)])[None],
+        return (np.stack([column_min(sub[:, 0]), column_max(sub[:, 1])])[None],
                 np.full(1, -1, np.intp))
     return flat[live], np.tile(np.arange(r, dtype=np.intp), c)[live]
 
