@@ -27,8 +27,12 @@ views and a moving client's requests do, and the plan stage is where a change to
 Writes ``bench/results/ab_commits_<REV's short hash>[_<REV2's>][_new_camera].{md,csv}``: one
 pair of files per comparison, so that a comparison a note quotes is not replaced by the next one.
 
+``--scenes`` takes model names without extension, stress scene names and ``boxes_10k``, the
+10,000 instances of ``bench/floor.py`` (not among the default scenes).
+
 Run: ``PYTHONPATH=. .venv/bin/python bench/ab_commits.py REV [--against REV2]
-[--scenes Duck,room_point] [--repeats N] [--params JSON] [--keep-freed] [--new-camera]``
+[--scenes Duck,room_point,boxes_10k] [--repeats N] [--params JSON] [--keep-freed]
+[--new-camera]``
 """
 
 from __future__ import annotations
@@ -72,9 +76,13 @@ extra = json.loads(sys.argv[1])
 
 def scene(name, turn=None):
     if name not in scenes:
-        bs = C.model_scene(name + ".glb") if name + ".glb" in C.MODEL_NAMES else (
-            C.model_scene(name + ".gltf") if name + ".gltf" in C.MODEL_NAMES
-            else C.stress_scene(name))
+        if name.startswith("boxes_"):  # bench/floor.py's many-instances scene
+            from bench import floor
+            bs = floor.instances_scene()
+        else:
+            bs = C.model_scene(name + ".glb") if name + ".glb" in C.MODEL_NAMES else (
+                C.model_scene(name + ".gltf") if name + ".gltf" in C.MODEL_NAMES
+                else C.stress_scene(name))
         scenes[name] = bs
         params[name] = bs.params(**extra)
     bs = scenes[name]
@@ -342,7 +350,7 @@ def main() -> None:
                     help="another commit to compare with REV instead of the working tree")
     ap.add_argument("--scenes", default=",".join(
         [n.rsplit(".", 1)[0] for n in C.MODEL_NAMES] + list(C.STRESS_SCENES)),
-        help="comma-separated: model names without extension, stress scene names")
+        help="comma-separated: model names without extension, stress scene names, boxes_10k")
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--rounds", type=int, default=9, help="fresh process pairs, one after another")
     ap.add_argument("--params", default="{}", help="RenderParams fields added to each scene's")
