@@ -19,7 +19,7 @@ from shadowmap.renderer.plan.shadow_region import (
     _swept_directional,
     _swept_positional,
     screen_rects,
-    union_rects,
+    union_per_receiver,
 )
 from shadowmap.renderer.reference import trace_reference
 from test_plan_pure import plan
@@ -118,11 +118,17 @@ def test_screen_rect_of_a_box_through_the_camera_is_finite_and_behind_is_empty()
     assert (x0, y0, x1) == (0, 0, 640) and 235 <= y1 <= 250
 
 
-def test_union_of_rects_skips_empty_ones():
-    rects = np.array([[[0, 0, 0, 0], [10, 20, 30, 40]], [[5, 25, 12, 50], [0, 0, 0, 0]]])
-    np.testing.assert_array_equal(union_rects(rects, axis=0), [[5, 25, 12, 50], [10, 20, 30, 40]])
-    np.testing.assert_array_equal(union_rects(rects[:, :1], axis=1), [[0, 0, 0, 0],
-                                                                     [5, 25, 12, 50]])
+def test_union_per_receiver_skips_empty_rects_and_spreads_shared_ones():
+    rects = np.array([[10, 20, 30, 40], [5, 25, 12, 50], [0, 0, 0, 0], [1, 1, 1, 9],
+                      [50, 60, 70, 80]])
+    which = np.array([0, 0, 2, 2, 1])
+    np.testing.assert_array_equal(union_per_receiver(rects, which, 3),
+                                  [[5, 20, 30, 50], [50, 60, 70, 80], [0, 0, 0, 0]])
+    # A rectangle given to every receiver (-1) joins each one's own.
+    shared = np.concatenate([rects, [[40, 0, 60, 10]]])
+    np.testing.assert_array_equal(union_per_receiver(shared, np.append(which, -1), 3),
+                                  [[5, 0, 60, 50], [40, 0, 70, 80], [40, 0, 60, 10]])
+    assert union_per_receiver(rects[:0], which[:0], 2).tolist() == [[0] * 4] * 2
 
 
 def _segment_hits_box(p, q, lo, hi):

@@ -590,60 +590,48 @@ def plan_region(lights: list[LightShadow], bounds: np.ndarray, visible: np.ndarr
     on_screen = np.zeros((n, 4), np.int64)
     on_screen[own] = rects[len(rects) - len(own):]
     live = (rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1])
-    per = np.zeros((len(receivers), 4), np.int64)  # the union over lights, per receiver
     reached, start = [], 0
-    for box, which in parts:
-        r = rects[start:start + len(box)]
-        ok = live[start:start + len(box)]
+    for box, _ in parts:
+        reached.append(bool(live[start:start + len(box)].any()))
         start += len(box)
-        reached.append(bool(ok.any()))
-        if not ok.any():
-            continue
-        r, which = r[ok], which[ok]
-        every = which < 0
-        if every.any():  # a box that stands for every receiver
-            r = np.concatenate([r[~every], np.repeat(r[every], len(receivers), axis=0)])
-            which = np.concatenate([which[~every],
-                                    np.tile(np.arange(len(receivers)), int(every.sum()))])
-        grouped = np.zeros((len(r) + len(receivers), 4), np.int64)
-        grouped[:len(r)] = r
-        keys = np.concatenate([which, np.arange(len(receivers))])
-        order = np.argsort(keys, kind="stable")
-        per = union_rects(np.stack([per, _union_by(grouped[order], keys[order],
-                                                   len(receivers))]), axis=0)
+    paired = len(rects) - len(own)  # the pairs' rectangles, every light's, then the receivers'
+    which = np.concatenate([w for _, w in parts]) if parts else np.zeros(0, np.intp)
+    per = union_per_receiver(rects[:paired], which, len(receivers))
     rect_of = np.zeros((n, 4), np.int64)
     rect_of[receivers] = per
     return reached, divide(rect_of, visible, receive, on_screen, width, height)
 
 
-def _union_by(rects: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
-    """Per key in ``range(count)``, the bounding rectangle of the non-empty rows of ``rects``
-    with that key (``keys`` sorted, every key present at least once).
+def union_per_receiver(rects: np.ndarray, which: np.ndarray, count: int) -> np.ndarray:
+    """Per receiver in ``range(count)``, the bounding rectangle of the non-empty rectangles
+    given to it.
+
+    Parameters
+    ----------
+    rects : ndarray, shape (M, 4), int
+        ``(x0, y0, x1, y1)``; empty where ``x1 <= x0`` or ``y1 <= y0`` (left out).
+    which : ndarray, shape (M,), intp
+        Each rectangle's receiver; -1 gives it to every receiver.
+    count : int
 
     Returns
     -------
     ndarray, shape (count, 4), int64
+        All zeros for a receiver given no non-empty rectangle.
     """
+    big = np.iinfo(np.int64).max
+    lo = np.full((count, 2), big, np.int64)
+    hi = np.full((count, 2), -big, np.int64)
     live = (rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1])
-    big = np.iinfo(np.int64).max
-    lo = np.where(live[:, None], rects[:, :2], big)
-    hi = np.where(live[:, None], rects[:, 2:], -big)
-    heads = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-    out = np.concatenate([np.minimum.reduceat(lo, heads), np.maximum.reduceat(hi, heads)],
-                         axis=1)
-    out[~np.logical_or.reduceat(live, heads)] = 0
-    return out
-
-
-def union_rects(rects: np.ndarray, axis: int) -> np.ndarray:
-    """The bounding rectangle of the non-empty ``(x0, y0, x1, y1)`` rectangles along ``axis``
-    (all zeros where every one is empty)."""
-    live = (rects[..., 2] > rects[..., 0]) & (rects[..., 3] > rects[..., 1])
-    big = np.iinfo(np.int64).max
-    lo = np.where(live[..., None], rects[..., :2], big).min(axis=axis)
-    hi = np.where(live[..., None], rects[..., 2:], -big).max(axis=axis)
-    out = np.concatenate([lo, hi], axis=-1)
-    out[~live.any(axis=axis)] = 0
+    every = live & (which < 0)
+    if every.any():
+        np.minimum(lo, column_min(rects[every, :2]), out=lo)
+        np.maximum(hi, column_max(rects[every, 2:]), out=hi)
+    own = live & (which >= 0)
+    np.minimum.at(lo, which[own], rects[own, :2])
+    np.maximum.at(hi, which[own], rects[own, 2:])
+    out = np.concatenate([lo, hi], axis=1)
+    out[lo[:, 0] == big] = 0
     return out
 
 
