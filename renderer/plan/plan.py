@@ -35,7 +35,7 @@ from .fit import (
     depth_step,
     texel_at,
 )
-from .geometry import corner_max, corner_min
+from .geometry import corner_max, corner_min, points_product
 from .instances import _frozen
 from .shadow_region import (
     MAX_SPLIT_RECEIVERS,
@@ -637,7 +637,7 @@ def one_sided_casters(ctx: PlanContext, m: LightShadow) -> np.ndarray:
         beyond = gap > m.near * spread
     else:
         corners = ctx.corners[casters]  # (K, 8, 3)
-        depth = -(corners @ m.view[2, :3] + m.view[2, 3])  # view-space depth (K, 8)
+        depth = -(points_product(corners, m.view[2, :3]) + m.view[2, 3])  # view depth (K, 8)
         beyond = corner_min(depth) >= m.near
     out = np.where(beyond, closure, 0).astype(np.int8)
     return _frozen(out) if out.any() else empty

@@ -29,6 +29,7 @@ from .geometry import (
     column_min,
     corner_max,
     corner_min,
+    points_product,
     row_norm,
     slice_max,
     slice_min,
@@ -409,7 +410,7 @@ def screen_rects(boxes: np.ndarray, view_proj: np.ndarray, width: int, height: i
     if k == 0:
         return np.zeros((0, 4), np.int64)
     corners = box_corners(boxes)  # (K, 8, 3)
-    clip = corners @ view_proj[:, :3].T + view_proj[:, 3]  # (K, 8, 4)
+    clip = points_product(corners, view_proj[:, :3].T) + view_proj[:, 3]  # (K, 8, 4)
     # In front of the near plane: z_clip >= -w.
     front = clip[..., 2] + clip[..., 3]  # (K, 8)
     ahead = corner_min(front) >= 0
