@@ -28,6 +28,7 @@ from shadowmap.renderer.plan.geometry import (
     frustum_planes,
     look_at,
     perspective,
+    points_product,
     row_norm,
     slice_max,
     slice_min,
@@ -243,6 +244,19 @@ def test_aabbs_in_frustum_equals_the_corner_test():
         frustum = rng.normal(size=(8, 3)) * scale + offset if trial % 2 else None
         np.testing.assert_array_equal(aabbs_in_frustum(bounds, planes, frustum),
                                       boxes_in_frustum(box_corners(bounds), planes, frustum))
+
+
+@pytest.mark.parametrize("shape", [(0, 8, 3), (5, 3), (7, 8, 3), (300, 8, 3), (4, 2, 8, 3)])
+def test_points_product_gives_numpys_stacked_product(shape: tuple[int, ...]):
+    rng = np.random.default_rng(len(shape) * 100 + shape[0])
+    p = rng.normal(size=shape) * 1e3
+    m = rng.normal(size=(3, 4))
+    for b in (m, m[:, 2]):
+        out = points_product(p, b)
+        assert out.shape == (p @ b).shape
+        np.testing.assert_array_equal(out, p @ b)
+    strided = p[..., ::-1]  # not contiguous: copied, the same values
+    np.testing.assert_array_equal(points_product(strided, m), strided @ m)
 
 
 @pytest.mark.parametrize("rows", [0, 1, 50, SLICE_ROWS - 1, SLICE_ROWS, 3 * SLICE_ROWS + 5])
