@@ -239,10 +239,10 @@ def _by_slices(a: np.ndarray, axis: int, ufunc: np.ufunc) -> np.ndarray:
     n = a.shape[axis]
     if n < 2 or a.size < SLICE_ROWS * n:
         return ufunc.reduce(a, axis=axis)
-    parts = np.moveaxis(a, axis, 0)
-    out = ufunc(parts[0], parts[1])
+    head = (slice(None),) * (axis % a.ndim)  # a[head + (k,)]: slice k (np.moveaxis costs more)
+    out = ufunc(a[head + (0,)], a[head + (1,)])
     for k in range(2, n):
-        ufunc(out, parts[k], out=out)
+        ufunc(out, a[head + (k,)], out=out)
     return out
 
 
