@@ -222,11 +222,11 @@ _AXES.flags.writeable = False
 # --------------------------------------------------------------------------------------------
 #
 # numpy reduces an axis of a few elements (a point's 3 coordinates, a box's 8 corners) row by
-# row: at thousands of rows that costs 10 to 30 times as much as one elementwise operation per
-# element of the short axis (numpy 2.4, 10,000 points: 0.30 ms for their least x, y and z
-# against 0.014 ms a column at a time; 0.13 ms for a sum over each point's coordinates against
-# 0.011 ms). The functions below give the values numpy's reduction gives: a least or greatest
-# value rounds nothing, and numpy adds fewer than 8 terms in order.
+# row: at thousands of rows that costs many times what one elementwise operation per element of
+# the short axis costs (the plan's stage at 10,000 instances: bench/ab_commits.py --scenes
+# boxes_10k against the code before these). The functions below give the values numpy's
+# reduction gives: a least or greatest value rounds nothing, and numpy adds fewer than 8 terms
+# in order.
 
 #: Rows from which the functions below reduce one slice or column at a time; with fewer, one
 #: numpy call costs less than one per slice (a few microseconds each).
@@ -302,7 +302,7 @@ def points_product(p: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``p @ b`` for points ``p`` (..., 3) and ``b`` (3,) or (3, P): shape (...) or (..., P).
 
     One (M, 3) product over all the points instead of numpy's one per leading index (per box of
-    N x 8 corners): the same values, a quarter of the time at 5,000 boxes.
+    N x 8 corners): the same values, several times faster at thousands of boxes.
     """
     if p.ndim <= 2:
         return p @ b
