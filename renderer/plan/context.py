@@ -60,7 +60,7 @@ class SizeRead:
     """One :meth:`PlanContext.map_size_and_need` call of a scene-fit light's plan: its arguments
     and the size it gave, which another view must get again to share the plan
     (:meth:`.plan.SceneFitPlan.refit`). ``stretch``: the any-view stretch the call found, where
-    no camera changes it (see :meth:`PlanContext.receiver_distance`), else None."""
+    no camera changes it (see :meth:`PlanContext._distance_and_stretch`), else None."""
 
     world: float
     receivers: np.ndarray
@@ -353,7 +353,7 @@ class PlanContext:
         """:meth:`map_size_for`, and the texels per side the same receivers want at one camera
         pixel per texel (what 'auto' would give them but for ``max_map_size``: the plan warns
         when that is over the limit, :func:`~.plan._resolution_warning`). ``stretch``: see
-        :meth:`receiver_distance`."""
+        :meth:`_distance_and_stretch`."""
         distance, stretch = self._distance_and_stretch(receivers, toward, stretch)
         pixel = self.pixel_per_distance * distance
         wanted = world / max(pixel, 1e-300)
@@ -376,8 +376,7 @@ class PlanContext:
             return d
         return np.full_like(d, self.flat_distance)
 
-    def receiver_distance(self, receivers: np.ndarray, toward: Toward | None = None,
-                          stretch: float | None = None) -> float:
+    def receiver_distance(self, receivers: np.ndarray, toward: Toward | None = None) -> float:
         """A representative camera distance of the receivers: the nearest box centre, or nearer
         where a light ``toward`` stretches its texels over their flat faces.
 
@@ -389,18 +388,18 @@ class PlanContext:
         :attr:`any_view`, the nearest distance over the largest k of the (nearest
         :data:`MAX_STRETCH_RECEIVERS`) receivers, k the most any view could see (1 / cos of the
         light's angle to the face).
-
-        With :attr:`any_view` and at most :data:`MAX_STRETCH_RECEIVERS` receivers, the nearest
-        distance is divided by a stretch that no camera changes: ``stretch``, where given, is
-        that divisor as an earlier view of the same receivers and light found it
-        (:class:`SizeRead`), and is not worked out again.
         """
-        return self._distance_and_stretch(receivers, toward, stretch)[0]
+        return self._distance_and_stretch(receivers, toward, None)[0]
 
     def _distance_and_stretch(self, receivers: np.ndarray, toward: Toward | None,
                               stretch: float | None) -> tuple[float, float | None]:
         """:meth:`receiver_distance`, and the any-view stretch it divided by where that does not
-        depend on the camera (else None)."""
+        depend on the camera (else None).
+
+        With :attr:`any_view` and at most :data:`MAX_STRETCH_RECEIVERS` receivers, the nearest
+        distance is divided by a stretch that no camera changes: ``stretch``, where given, is
+        that divisor as an earlier view of the same receivers and light found it
+        (:class:`SizeRead`), and is not worked out again."""
         if self.texel_distance is not None:
             return float(self.view_distance(self.texel_distance)), None
         d = self.view_distance(row_norm(self.centres[receivers] - self.cam_pos))
