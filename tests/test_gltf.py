@@ -1093,6 +1093,35 @@ def test_a_non_affine_node_matrix_is_drawn_affine_with_a_warning():
     assert "node 'lens'" in w and "not affine" in w and "[0.5, 0.0, 0.0, 1.0]" in w, w
 
 
+def test_a_shearing_node_matrix_is_drawn_as_written_with_a_warning():
+    """glTF requires node matrices that decompose into TRS. A shearing one is drawn as its
+    numbers say (normals by the cofactor, so still perpendicular to the sheared faces), and
+    said, since viewers that decompose it draw another shape; a zero scale, a mirror, float32
+    rounding of a rotation and shear composed from TRS parents are all fine."""
+    g = Gltf()
+    mesh = g.triangle(TRI * 2)
+    shear = np.eye(4)
+    shear[0, 1] = 0.5  # x += 0.5 y: the y axis leans 26.6 degrees off square
+    g.node(mesh=mesh, matrix=shear.T.ravel().tolist(), name="leaning")
+    turn = np.eye(4, dtype=np.float32)
+    c, s = np.float32(math.cos(0.3)), np.float32(math.sin(0.3))
+    turn[:2, :2] = [[c, -s], [s, c]]
+    flat = np.diag([1.0, 0.0, -2.0, 1.0])  # a zero scale and a mirror: both decompose
+    g.node(mesh=mesh, matrix=(turn @ flat).T.ravel().tolist(), name="flat")
+    g.node(scale=[1, 3, 1], children=[3])  # non-uniform parent, turned child: TRS each
+    g.node(root=False, mesh=mesh, rotation=[0, 0, math.sin(0.4), math.cos(0.4)])
+    scene = g.load()
+    leaning = scene.instances[0]
+    np.testing.assert_array_equal(leaning.matrix, shear)
+    # The box around the sheared local box, which holds the sheared triangle.
+    np.testing.assert_allclose(leaning.bounds, [[0, 0, 0], [3, 2, 0]])
+    (w,) = scene.warnings
+    assert "node 'leaning'" in w and "shears" in w and "26.6 degrees from perpendicular" in w, w
+    # Drawn as written: the world triangles are the sheared ones.
+    np.testing.assert_allclose(scene.world_triangles(leaning)[0],
+                               [[0, 0, 0], [2, 0, 0], [1, 2, 0]])
+
+
 def test_rotations_are_normalized_quaternions():
     """A rotation of another length would scale and shear the node: normalized (a zero one is
     no rotation), said past rounding; a matrix's node has no rotation to check."""
@@ -1373,6 +1402,41 @@ def test_skinned_normals_use_the_inverse_transpose():
     n0 = np.array([0.5, 1, 0]) / np.linalg.norm([0.5, 1, 0])
     np.testing.assert_allclose(prim.normals[0], n0, atol=1e-6)
     np.testing.assert_allclose(prim.normals[2], n0, atol=1e-6)
+
+
+def test_a_joint_listed_twice_and_joints_without_a_common_root_are_said():
+    """glTF requires each joint once and a common root for a skin's joints. Such a skin is
+    drawn as its matrices say (each entry with its own inverse bind matrix, each joint where
+    its tree puts it), and said: viewers that build one bone per node in one skeleton draw it
+    otherwise."""
+    def skinned(joints: list[int], roots: list[int]) -> Scene:
+        g = Gltf()
+        mesh = g.triangle(attributes={
+            "JOINTS_0": g.accessor(np.array([[0, 0, 0, 0], [1, 0, 0, 0],
+                                             [len(joints) - 1, 0, 0, 0]]), ctype=UBYTE),
+            "WEIGHTS_0": g.accessor(np.tile(np.array([1, 0, 0, 0], np.float32), (3, 1)))})
+        ibm = np.tile(np.eye(4, dtype=np.float32), (len(joints), 1, 1))
+        ibm[-1, :3, 3] = [0, 0, -1]  # the last entry's own bind
+        g.doc["skins"] = [{"joints": joints, "inverseBindMatrices": g.accessor(ibm)}]
+        g.node(mesh=mesh, skin=0)
+        g.node(root=1 in roots, name="hip", translation=[1, 0, 0],
+               children=[] if 2 in roots else [2])
+        g.node(root=2 in roots, name="knee", translation=[0, 1, 0])
+        return g.load()
+
+    twice = skinned([1, 2, 2], roots=[1])
+    (w,) = twice.warnings
+    assert "skin 0 lists node 'knee' more than once as a joint" in w, w
+    # Each entry with its own inverse bind matrix: v2 is the knee's, moved by its own bind.
+    np.testing.assert_allclose(twice.primitives[0].positions,
+                               TRI + [[1, 0, 0], [1, 1, 0], [1, 1, -1]], atol=1e-6)
+    apart = skinned([1, 2], roots=[1, 2])
+    assert any("its joints have no common root" in w and "'hip' and 'knee'" in w
+               for w in apart.warnings), apart.warnings
+    ok = skinned([1, 2], roots=[1])
+    assert not ok.warnings
+    np.testing.assert_allclose(ok.primitives[0].positions,
+                               TRI + [[1, 0, 0], [1, 1, -1], [1, 1, -1]], atol=1e-6)
 
 
 @pytest.mark.parametrize("name", ["CesiumMan.glb", "Fox.glb"])

@@ -513,6 +513,7 @@ class _Loader:
         if mats is None:
             mats = self._joint_matrices[s] = skin.joint_matrices(self.doc, s, self.graph,
                                                                  self.accessors)
+            self.warnings += skin.joint_warnings(self.doc, s, self.graph)
         joints: list[np.ndarray] = []
         weights: list[np.ndarray] = []
         k = 0

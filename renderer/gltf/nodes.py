@@ -92,8 +92,8 @@ class NodeGraph:
     #: (EXT_mesh_gpu_instancing, KHR_lights_punctual).
     special: np.ndarray
     names: list[str]
-    #: What was repaired in the graph of the drawn scene (a non-affine node matrix, a rotation
-    #: that is not a unit quaternion).
+    #: What was repaired or is drawn against the glTF rules in the graph of the drawn scene (a
+    #: non-affine or shearing node matrix, a rotation that is not a unit quaternion).
     warnings: list[str]
 
 
@@ -101,6 +101,32 @@ class NodeGraph:
 #: warning: float rounding is not, nor the steps of a rotation stored as normalized bytes (at
 #: most about 0.008 from 1).
 ROTATION_SLACK = 0.02
+
+#: How far from 0 the cosine between two axes of a node matrix may be before the matrix is said
+#: to shear (about 0.06 degrees from square): float32 rounding of a composed TRS is far below.
+SHEAR_SLACK = 1e-3
+
+
+def shear_degrees(linear: np.ndarray) -> np.ndarray:
+    """How far from square the axes of each matrix meet: the largest of ``|90 - angle|`` over
+    its three pairs of columns, in degrees; 0 where a column is zero or not finite (a zero
+    scale decomposes; a non-finite matrix is refused where it is drawn).
+
+    Parameters
+    ----------
+    linear : ndarray, shape (N, 3, 3)
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        gram = np.einsum("nki,nkj->nij", linear, linear)
+        d = np.sqrt(np.einsum("nii->ni", gram))
+        cos = [gram[:, i, j] / (d[:, i] * d[:, j]) for i, j in ((0, 1), (0, 2), (1, 2))]
+        worst = np.max(np.abs(np.stack(cos, axis=1)), axis=1, initial=0.0)
+    worst = np.where(np.isfinite(worst), np.minimum(worst, 1.0), 0.0)
+    return np.degrees(np.arcsin(worst))
 
 
 def unit_quaternions(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -259,6 +285,11 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
         projective = np.abs(given[:, 3] - (0.0, 0.0, 0.0, 1.0)).max(axis=1, initial=0.0) > 1e-6
     projective |= ~np.isfinite(given[:, 3]).all(axis=1)
     given[:, 3] = (0.0, 0.0, 0.0, 1.0)
+    # Nor may it shear: glTF requires a node matrix to decompose into translation, rotation
+    # and scale. One that shears is drawn as written, and said: viewers that decompose it into
+    # TRS (Blender's importer, three.js) draw another shape.
+    shear = shear_degrees(given[:, :3, :3])
+    sheared = shear > np.degrees(np.arcsin(SHEAR_SLACK))
     local[m_rows] = given
 
     # The scene drawn, and its listed nodes.
@@ -308,6 +339,11 @@ def build_graph(doc: dict[str, Any]) -> NodeGraph:
     warnings = [f"node {names[i]!r}: its matrix is not affine (bottom row "
                 f"{brief(m_values[k][3::4])}, not [0, 0, 0, 1]); drawn with [0, 0, 0, 1]"
                 for k, i in enumerate(m_rows) if projective[k] and in_scene[i]]
+    warnings += [f"node {names[i]!r}: its matrix shears (two of its axes are {shear[k]:.3g} "
+                 "degrees from perpendicular), which glTF does not allow (a node matrix must "
+                 "decompose into translation, rotation and scale); drawn as written, where a "
+                 "viewer that decomposes it draws another shape"
+                 for k, i in enumerate(m_rows) if sheared[k] and in_scene[i]]
     with_matrix = np.zeros(n, bool)
     with_matrix[m_rows] = True  # a matrix wins over TRS: its rotation is not used
     warnings += [f"node {names[i]!r}: its rotation has length {length[i]:.3g}, not 1; "

@@ -88,6 +88,38 @@ def joint_matrices(doc: dict[str, Any], skin: int, graph: NodeGraph,
     return mats
 
 
+def joint_warnings(doc: dict[str, Any], skin: int, graph: NodeGraph) -> list[str]:
+    """What a skin's joint list breaks of the glTF rules, though it is drawn as its matrices
+    say: a node listed twice as a joint, and joints with no common root. Viewers that build one
+    bone per node in one skeleton (Blender's importer) draw such a skin another way.
+
+    Call after :func:`joint_matrices`, which checks the list itself.
+    """
+    joints = np.asarray(doc["skins"][skin]["joints"], np.int64)
+    out = []
+    nodes, counts = np.unique(joints, return_counts=True)
+    twice = nodes[counts > 1]
+    if len(twice):
+        named = ", ".join(repr(graph.names[i]) for i in twice[:3].tolist())
+        more = f" and {len(twice) - 3} more" if len(twice) > 3 else ""
+        out.append(f"skin {skin} lists node {named}{more} more than once as a joint (glTF "
+                   "requires each joint once): each entry is drawn with its own inverse bind "
+                   "matrix")
+    # Each joint's topmost ancestor: one walk up per level of the deepest joint.
+    root = joints.copy()
+    up = graph.parent[root]
+    while (up >= 0).any():
+        root = np.where(up >= 0, up, root)
+        up = graph.parent[root]
+    trees = np.unique(root)
+    if len(trees) > 1:
+        first = [int(joints[root == t][0]) for t in trees[:2].tolist()]
+        out.append(f"skin {skin}: its joints have no common root (glTF requires one): nodes "
+                   f"{graph.names[first[0]]!r} and {graph.names[first[1]]!r} lie in different "
+                   "trees; each joint is drawn where its own tree places it")
+    return out
+
+
 def _cofactor(m: np.ndarray) -> np.ndarray:
     """``det(m) * inv(m).T`` for (K, 3, 3) matrices, defined for singular ones too.
 
