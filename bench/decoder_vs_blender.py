@@ -14,7 +14,8 @@ Three sets of files:
 - every model of the models folder;
 - files built here, one per glTF feature the models do not exercise (sparse accessors, morph
   targets at mesh and node weights, quantized positions, strips and fans, mirroring nodes,
-  GPU instancing, a deep hierarchy whose non-uniform scales and turns compose into a shear),
+  GPU instancing, a deep hierarchy whose non-uniform scales and turns compose into a shear,
+  a default scene other than the first),
   and one that breaks a glTF rule to show a difference (a node matrix that shears);
 - ``--mutations N`` random mutations of the models (``tests/fuzz_mutations.py``, the files
   ``tests/test_fuzz.py`` renders, seed ``--seed``): where both decoders accept a file, each
@@ -268,6 +269,16 @@ def hierarchy() -> bytes:
     return b.glb()
 
 
+def scenes() -> bytes:
+    """Two scenes, the file's default the second: only its node is drawn."""
+    b = Builder()
+    mesh = b.quad()
+    b.node(mesh=mesh)
+    b.doc["scenes"].append({"nodes": [b.node(root=False, mesh=mesh, translation=[5, 0, 0])]})
+    b.doc["scene"] = 1
+    return b.glb()
+
+
 def sheared() -> bytes:
     """A node matrix that shears, against glTF's rule that it decompose into translation,
     rotation and scale: this project draws it as written (with a warning), Blender decomposes
@@ -282,7 +293,7 @@ def sheared() -> bytes:
 #: The built files, by name.
 BUILT = {"sparse.glb": sparse, "morph.glb": morph, "quantized.glb": quantized,
          "strips_fans.glb": strips_and_fans, "mirrored.glb": mirrored,
-         "instancing.glb": instancing, "hierarchy.glb": hierarchy,
+         "instancing.glb": instancing, "hierarchy.glb": hierarchy, "scenes.glb": scenes,
          "sheared_matrix.glb": sheared}
 
 
