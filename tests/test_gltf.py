@@ -1132,14 +1132,22 @@ def test_rotations_are_normalized_quaternions():
     g.node(mesh=mesh, rotation=[0, 0, 0, 0], name="zero")
     g.node(mesh=mesh, rotation=[0, 0, 0, 1.0000001])  # rounding: no word
     g.node(mesh=mesh, rotation=[0, 0, 0, 3], matrix=np.eye(4).ravel().tolist())
+    # Squares past float64's range: the length is found without them (a plain norm would be
+    # infinite, and the rotation divided by it none at all).
+    g.node(mesh=mesh, rotation=[0, 1e308, 1e-300, 0], name="huge")
+    g.node(mesh=mesh, rotation=[0, 0, 1e-200, 0], name="tiny")
     scene = g.load()
-    double, zero, rounded, matrix = (i.matrix for i in scene.instances)
+    double, zero, rounded, matrix, huge, tiny = (i.matrix for i in scene.instances)
     np.testing.assert_allclose(double[:3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
     for m in (zero, rounded, matrix):
         np.testing.assert_allclose(m, np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(huge[:3, :3], np.diag([-1, 1, -1]), atol=1e-12)  # 180 deg, y
+    np.testing.assert_allclose(tiny[:3, :3], np.diag([-1, -1, 1]), atol=1e-12)  # 180 deg, z
     assert scene.warnings == ["node 'double': its rotation has length 2, not 1; normalized",
                               "node 'zero': its rotation has length 0, not 1; no rotation is "
-                              "used"]
+                              "used",
+                              "node 'huge': its rotation has length 1e+308, not 1; normalized",
+                              "node 'tiny': its rotation has length 1e-200, not 1; normalized"]
 
 
 def test_fifty_thousand_instances_load_quickly():

@@ -133,7 +133,10 @@ def unit_quaternions(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     """glTF rotations as unit quaternions.
 
     Another length would scale and shear what they turn; a zero one turns nothing (the
-    identity is used); a non-finite one is kept, to be refused where it is drawn.
+    identity is used); a non-finite one is kept, to be refused where it is drawn. A length
+    whose squares leave float64's range (components past about 1e154, or all below about
+    1e-154) is taken from the components scaled by the largest first: divided by an overflowed
+    length of infinity, such a rotation would silently become none at all.
 
     Parameters
     ----------
@@ -148,12 +151,20 @@ def unit_quaternions(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     off : ndarray, shape (N,), bool
         Finite rotations whose length was past :data:`ROTATION_SLACK` from 1 (zero included).
     """
-    with np.errstate(over="ignore", invalid="ignore"):
+    r = np.asarray(r, np.float64)
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        finite = np.isfinite(r).all(axis=1)
         length = np.linalg.norm(r, axis=1)
-        finite = np.isfinite(length)
-        usable = length > 0.0
-        unit = np.where(usable[:, None], r / np.where(usable, length, 1.0)[:, None],
+        unit = np.where((finite & (length > 0.0))[:, None],
+                        r / np.where(length > 0.0, length, 1.0)[:, None],
                         np.where(finite[:, None], (0.0, 0.0, 0.0, 1.0), r))
+        big = np.abs(r).max(axis=1, initial=0.0)
+        redo = np.flatnonzero(finite & (big > 0.0) & ~(np.isfinite(length) & (length > 0.0)))
+        if len(redo):
+            scaled = r[redo] / big[redo, None]
+            n = np.linalg.norm(scaled, axis=1)  # in [1, 2]
+            unit[redo] = scaled / n[:, None]
+            length[redo] = big[redo] * n  # infinite past float64's range: still said
     return unit, length, finite & (np.abs(length - 1.0) > ROTATION_SLACK)
 
 
