@@ -60,7 +60,8 @@ from .scene import (
 if TYPE_CHECKING:
     from .gl.resources import GpuScene
 
-__all__ = ["LightDepth", "Limits", "RenderResult", "Renderer", "request_warnings"]
+__all__ = ["LightDepth", "Limits", "RenderResult", "Renderer", "camera_warnings",
+           "request_warnings"]
 
 
 @dataclass
@@ -525,6 +526,7 @@ class Renderer:
         check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2, _request_points(params))
         t = time.perf_counter()
         camera = resolve_camera(params.camera, scene, params.width, params.height)
+        warnings += camera_warnings(params, scene, camera)
         ahead = boxes_ahead(camera, scene)
         clipped = near_clip_warning(camera, scene, params.camera, ahead)
         if clipped:
@@ -591,7 +593,8 @@ class Renderer:
         # The memory the render needs, before any GL work: refused over max_request_bytes,
         # except that 'auto' maps are held to the largest size that fits (with a warning).
         top, fitted = fit_request(params, scene, self.limits)
-        warnings += request_warnings(params, scene, self.limits) + fitted
+        # The camera's own warnings are judged per camera (_prepare_new): not kept here.
+        warnings += _shadow_warnings(params, self.limits) + _light_warnings(params, scene) + fitted
         # A copy the preparation keeps: the caller may change their model afterwards.
         params = params.model_copy(deep=True)
         held = params.shadows.max_map_size != top
@@ -829,6 +832,11 @@ def request_warnings(params: RenderParams, scene: Scene, limits: Limits) -> list
     list of str
         One sentence per finding, naming the setting or the light.
     """
+    return (_shadow_warnings(params, limits) + camera_warnings(params, scene)
+            + _light_warnings(params, scene))
+
+
+def _shadow_warnings(params: RenderParams, limits: Limits) -> list[str]:
     out: list[str] = []
     shadows = params.shadows
     # Only an explicit value (the default under a lower limit is the service's configuration,
@@ -840,14 +848,15 @@ def request_warnings(params: RenderParams, scene: Scene, limits: Limits) -> list
     if ("pcf_kernel" in shadows.model_fields_set and shadows.pcf_kernel > 1
             and shadows.filter == "hard"):
         out.append(f"shadows.pcf_kernel {shadows.pcf_kernel} is not used: the filter is 'hard'")
-    out += _camera_warnings(params, scene)
-    if params.lights is not None:
-        for k, lp in enumerate(params.lights):
-            if lp.pose is not None and not _is_rigid(lp.pose, f"light {k}"):
-                out.append(f"light {k}: the pose has scale or shear: its nearest rotation is used")
-    else:
-        out += _file_light_warnings(scene)
     return out
+
+
+def _light_warnings(params: RenderParams, scene: Scene) -> list[str]:
+    if params.lights is None:
+        return _file_light_warnings(scene)
+    return [f"light {k}: the pose has scale or shear: its nearest rotation is used"
+            for k, lp in enumerate(params.lights)
+            if lp.pose is not None and not _is_rigid(lp.pose, f"light {k}")]
 
 
 def _is_rigid(pose: list[list[float]], what: str) -> bool:
@@ -862,7 +871,19 @@ def _is_rigid(pose: list[list[float]], what: str) -> bool:
     return bool(np.allclose(rigid[:3, :3], given[:3, :3], rtol=0.0, atol=RIGID_TOLERANCE * scale))
 
 
-def _camera_warnings(params: RenderParams, scene: Scene) -> list[str]:
+def camera_warnings(params: RenderParams, scene: Scene,
+                    camera: Camera | None = None) -> list[str]:
+    """What the request's camera was made into: a pose with scale or shear made rigid, an
+    ``up`` along the view direction replaced. Judged per camera: requests that differ in their
+    camera alone share everything else the renderer settles (:meth:`Renderer._request_base`).
+
+    Parameters
+    ----------
+    params : RenderParams
+    scene : Scene
+    camera : Camera, optional
+        ``params.camera`` resolved, where the caller has it.
+    """
     cam = params.camera
     if cam is None:
         return []
@@ -872,13 +893,17 @@ def _camera_warnings(params: RenderParams, scene: Scene) -> list[str]:
         return []
     if cam.eye is None or "up" not in cam.model_fields_set:
         return []
-    try:
-        pose = resolve_camera(cam, scene, params.width, params.height).pose
-    except RequestError:
-        return []
+    if camera is None:
+        try:
+            camera = resolve_camera(cam, scene, params.width, params.height)
+        except RequestError:
+            return []
+    pose = camera.pose
     # The up vector was honoured when the camera's +Y is its part across the view axis; when it
     # lies along the axis it has no such part and another one was chosen.
     up = np.asarray(cam.up, np.float64)
+    if up.any():
+        up = up / np.abs(up).max()  # the direction alone: tiny components would square to 0
     z = pose[:3, 2]
     across = up - np.dot(up, z) * z
     length = float(np.linalg.norm(across))

@@ -204,6 +204,33 @@ def test_a_clean_render_has_no_warnings(renderer):
 
 
 @pytest.mark.gl
+def test_camera_warnings_follow_each_camera_of_requests_alike_otherwise(renderer):
+    """Requests that differ in their camera alone share what the renderer settles before the
+    camera; the camera's own warnings are each request's. A batch's views and a moving client
+    send such requests: one view's warning must not stay with the next, nor a clean view's
+    silence hide the next one's."""
+    scene = T.caster_on_ground()
+    down = {"eye": [0, 6, 0], "target": [0, 0, 0]}
+    scaled = [[2, 0, 0, 0], [0, 2, 0, 1], [0, 0, 2, 6], [0, 0, 0, 1]]
+    cameras = [LOOK, {**down, "up": [0, 1, 0]}, {**LOOK, "up": [0, 1, 0]}, {"pose": scaled},
+               {**down, "up": [0, -1, 0]}, LOOK]
+    said = [renderer.render(scene, RenderParams(width=96, height=64, camera=c)).warnings
+            for c in cameras]
+    assert said == [[], [f"camera: up {[0.0, 1.0, 0.0]} is parallel to the view direction: "
+                         "another up vector is used"], [],
+                    ["camera: the pose has scale or shear: its nearest rotation is used"],
+                    [f"camera: up {[0.0, -1.0, 0.0]} is parallel to the view direction: "
+                     "another up vector is used"], []]
+    # An up vector whose squares underflow keeps its direction: honoured, not replaced.
+    tiny = renderer.render(scene, RenderParams(width=96, height=64,
+                                               camera={**LOOK, "up": [0, 1e-200, 0]}))
+    plain = renderer.render(scene, RenderParams(width=96, height=64,
+                                                camera={**LOOK, "up": [0, 1, 0]}))
+    assert tiny.warnings == []
+    np.testing.assert_array_equal(tiny.camera.pose, plain.camera.pose)
+
+
+@pytest.mark.gl
 def test_clamped_max_map_size_is_reported_and_still_clamped(renderer):
     params = RenderParams(width=96, height=64, camera=LOOK, shadows={"max_map_size": 16384})
     assert renderer.limits.max_map_size < 16384

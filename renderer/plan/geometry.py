@@ -156,6 +156,10 @@ def pose_from_direction(
     z = -forward / n
     up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, np.float64)
     un = np.linalg.norm(up)
+    if un == 0.0 and up.any():
+        # Components below about 1e-160 square to zero: the direction is still there.
+        up = up / np.abs(up).max()
+        un = np.linalg.norm(up)
     if un <= 0 or abs(np.dot(up / un, z)) > 0.999:
         up = np.eye(3)[int(np.argmin(np.abs(z)))]
     x = cross3(up, z)
