@@ -529,6 +529,20 @@ def unflattened(data: bytes, nodes: list[int]) -> bytes:
     return glb_bytes(doc, blob)
 
 
+def blender_version(python: str) -> str:
+    """The version of the Blender module ``python`` imports; exits with the reason if none."""
+    try:
+        proc = subprocess.run([python, "-c", "import bpy; print(bpy.app.version_string)"],
+                              capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.SubprocessError) as exc:
+        raise SystemExit(f"--blender-python {python}: {exc}") from exc
+    lines = proc.stdout.strip().splitlines()
+    if proc.returncode or not lines:
+        why = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise SystemExit(f"--blender-python {python} does not import bpy: {why}")
+    return lines[-1]
+
+
 def run(blender_python: str, count: int, seed: int) -> None:
     t0 = time.perf_counter()
     models = sorted(p for p in C.models_dir().iterdir() if p.suffix in (".glb", ".gltf"))
@@ -536,9 +550,7 @@ def run(blender_python: str, count: int, seed: int) -> None:
         "model": [(p.name, p) for p in models],
         "built": [(name, make()) for name, make in BUILT.items()],
         "mutation": list(mutations(count, seed)) if count else []}
-    version = subprocess.run(
-        [blender_python, "-c", "import bpy; print(bpy.app.version_string)"],
-        capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
+    version = blender_version(blender_python)
     work = Path(tempfile.mkdtemp(prefix="decoder_vs_blender_"))
     rows: list[dict[str, Any]] = []
     try:

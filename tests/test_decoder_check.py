@@ -129,3 +129,10 @@ def test_the_other_decoder_dying_on_a_file_costs_that_file_only(check, tmp_path)
     rows = check.compare_files(str(python), files, "built", tmp_path / "work")
     assert [r["verdict"] for r in rows] == ["same", "Blender refuses", "same"]
     assert rows[1]["blender_error"] == "Blender exited with code 3"
+
+
+def test_an_interpreter_without_blender_is_refused_with_the_reason(check, tmp_path):
+    with pytest.raises(SystemExit, match="does not import bpy: ModuleNotFoundError"):
+        check.blender_version(sys.executable)
+    with pytest.raises(SystemExit, match="No such file"):
+        check.blender_version(str(tmp_path / "missing"))
