@@ -33,7 +33,16 @@ from .extensions import (
     texture_sources,
     texture_transform,
 )
-from .reader import Buffers, Resolver, brief, extension, get_list, is_data_uri, load_uri
+from .reader import (
+    Buffers,
+    Resolver,
+    brief,
+    exception_text,
+    extension,
+    get_list,
+    is_data_uri,
+    load_uri,
+)
 
 #: Largest texture decoded (pixels): 64 Mpixel, like PIL's ``Image.MAX_IMAGE_PIXELS`` guard.
 MAX_TEXTURE_PIXELS = 64 * 2**20
@@ -333,7 +342,7 @@ class Materials:
             except LimitError:
                 raise
             except Exception as exc:  # noqa: BLE001 - PIL raises many types on bad input
-                result = f"cannot be decoded ({type(exc).__name__}: {exc})"
+                result = f"cannot be decoded ({exception_text(exc)})"
         self._images[index] = result
         return result
 

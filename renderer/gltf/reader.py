@@ -285,6 +285,18 @@ def brief(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
+#: An object's default repr (``<_io.BytesIO object at 0x7f...>``), as a decoder's message may
+#: quote its input: the address changes from run to run.
+_OBJECT_REPR = re.compile(r"<([\w.]+) object at 0x[0-9a-fA-F]+>")
+
+
+def exception_text(exc: BaseException) -> str:
+    """``Type: message`` of a decoder's exception, for a warning: the same from run to run
+    (object addresses left out) and short (:func:`brief`'s limit of a few lines)."""
+    text = _OBJECT_REPR.sub(r"<\1>", f"{type(exc).__name__}: {exc}")
+    return text if len(text) <= 200 else text[:197] + "..."
+
+
 def get_list(doc: dict[str, Any], key: str) -> list[Any]:
     """A top-level array of the document (empty when absent), refused when not an array."""
     value = doc.get(key, [])
