@@ -15,7 +15,7 @@ Three sets of files:
 - files built here, one per glTF feature the models do not exercise (sparse accessors, morph
   targets at mesh and node weights, quantized positions, strips and fans, mirroring nodes,
   GPU instancing, a deep hierarchy whose non-uniform scales and turns compose into a shear,
-  a default scene other than the first),
+  a default scene other than the first, cameras and lights on turned nodes),
   and one that breaks a glTF rule to show a difference (a node matrix that shears);
 - ``--mutations N`` random mutations of the models (``tests/fuzz_mutations.py``, the files
   ``tests/test_fuzz.py`` renders, seed ``--seed``): where both decoders accept a file, each
@@ -31,7 +31,11 @@ store (no animation is played). Per file: our triangles and Blender's, the drawn
 one and the nearest of the other (each triangle matched to the one whose centroid is nearest;
 the distance of two triangles is the farthest of a corner of one from the nearest corner of the
 other), as a share of the diagonal of the two scenes' bounds. *same*: at most
-:data:`SAME` both ways. Written to bench/results/decoder_vs_blender.md and .csv.
+:data:`SAME` both ways. The files' cameras and lights are compared too: each of ours against
+Blender's of the same kind nearest it, positions (a share of the scene's size), view and up
+directions, and a perspective camera's field of view or a spot light's outer cone; *same*:
+within :data:`SAME` and :data:`VIEW_DEGREES`. Written to bench/results/decoder_vs_blender.md
+and .csv.
 """
 
 from __future__ import annotations
@@ -56,6 +60,7 @@ import numpy as np
 from bench import _common as C  # before shadowmap: selects the GL platform
 from shadowmap.renderer import ShadowMapError, load_scene  # noqa: E402
 from shadowmap.renderer.limits import check_gpu_range  # noqa: E402
+from shadowmap.renderer.scene import Scene  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 TESTS = HERE.parent / "tests"
@@ -65,6 +70,9 @@ SAME = 1e-5
 #: An axis of a node matrix scaled below this share of another flattens the node (and a
 #: determinant below this share of the axes' product): see :func:`flattening_matrices`.
 FLAT = 1e-12
+#: Cameras' and lights' directions and angles count as the same within this many degrees
+#: (Blender keeps them in float32: about 1e-5 degrees apart).
+VIEW_DEGREES = 1e-3
 #: The share of a node's largest scale :func:`unflattened` gives a flattened axis back.
 UNFLATTEN = 1e-3
 #: Triangles of the other decoder tried for each one (those with the nearest centroids).
@@ -279,6 +287,28 @@ def scenes() -> bytes:
     return b.glb()
 
 
+def cameras_and_lights() -> bytes:
+    """Cameras (perspective, under a turned and scaled parent; orthographic) and
+    KHR_lights_punctual lights (spot, point, directional) on turned nodes."""
+    b = Builder()
+    b.doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    b.doc["cameras"] = [
+        {"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1, "aspectRatio": 1.5}},
+        {"type": "orthographic",
+         "orthographic": {"xmag": 2.0, "ymag": 1.5, "znear": 0.1, "zfar": 50.0}}]
+    b.doc["extensions"] = {"KHR_lights_punctual": {"lights": [
+        {"type": "spot", "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.5}},
+        {"type": "point"}, {"type": "directional"}]}}
+    b.node(mesh=b.quad())
+    camera = b.node(root=False, camera=0, translation=[0, 1, 5], rotation=_turn((1, 0, 0), -10))
+    b.node(children=[camera], rotation=_turn((0, 1, 0), 30), scale=[2, 2, 2])
+    b.node(camera=1, translation=[3, 3, 3], rotation=_turn((1, -1, 0), -40))
+    for k, axis in enumerate([(1, 0, 0), (0, 1, 1), (1, 2, -1)]):
+        b.node(translation=[k - 1.0, 4.0, 1.0], rotation=_turn(axis, -60 + 20 * k),
+               extensions={"KHR_lights_punctual": {"light": k}})
+    return b.glb()
+
+
 def sheared() -> bytes:
     """A node matrix that shears, against glTF's rule that it decompose into translation,
     rotation and scale: this project draws it as written (with a warning), Blender decomposes
@@ -294,7 +324,7 @@ def sheared() -> bytes:
 BUILT = {"sparse.glb": sparse, "morph.glb": morph, "quantized.glb": quantized,
          "strips_fans.glb": strips_and_fans, "mirrored.glb": mirrored,
          "instancing.glb": instancing, "hierarchy.glb": hierarchy, "scenes.glb": scenes,
-         "sheared_matrix.glb": sheared}
+         "cameras_lights.glb": cameras_and_lights, "sheared_matrix.glb": sheared}
 
 
 # --------------------------------------------------------------------------------------------
@@ -403,8 +433,9 @@ def compare(ours: np.ndarray, theirs: np.ndarray) -> dict[str, Any]:
             "verdict": "same" if distance <= SAME else "differs"}
 
 
-def world_triangles(data: bytes | Path) -> tuple[np.ndarray, list[str]]:
-    """Our decoder's drawn triangles of a file, world space, and its warnings.
+def world_triangles(data: bytes | Path) -> tuple[np.ndarray, list[str], list[dict[str, Any]]]:
+    """Our decoder's drawn triangles of a file, world space, its warnings, and its cameras and
+    lights (:func:`scene_views`).
 
     Raises
     ------
@@ -418,15 +449,66 @@ def world_triangles(data: bytes | Path) -> tuple[np.ndarray, list[str]]:
         # What every render checks before it draws: a scene float32 cannot place is refused.
         lo, hi = scene.bounds
         check_gpu_range(np.stack([lo, hi]), (lo + hi) / 2)
+        views = scene_views(scene)
         if not scene.instances:
-            return np.zeros((0, 3, 3)), scene.warnings
+            return np.zeros((0, 3, 3)), scene.warnings, views
         tris = np.concatenate([scene.world_triangles(i) for i in scene.instances])
-    return tris, scene.warnings
+    return tris, scene.warnings, views
+
+
+def scene_views(scene: Scene) -> list[dict[str, Any]]:
+    """The scene's cameras and lights as ``bench/blender_triangles.py`` lists Blender's: kind
+    (``camera`` or the light's type), pose (4, 4) and angle (a perspective camera's vertical
+    field of view, a spot light's outer cone, radians; None otherwise)."""
+    out = [{"kind": "camera", "pose": c.pose, "angle": c.yfov} for c in scene.cameras]
+    out += [{"kind": lt.type, "pose": lt.pose,
+             "angle": lt.outer_cone if lt.type == "spot" else None} for lt in scene.lights]
+    return out
+
+
+def _apart(v: dict[str, Any], t: dict[str, Any], scale: float) -> tuple[float, float, float]:
+    """Two views' distance (a share of ``scale``), the larger of the angles between their view
+    and up directions, and between their angles (degrees); NaN where either is not finite."""
+    p, q = np.asarray(v["pose"], np.float64), np.asarray(t["pose"], np.float64)
+    turn = max(math.degrees(math.acos(min(1.0, max(-1.0, float(p[:3, k] @ q[:3, k])))))
+               for k in (1, 2))
+    if v["angle"] is None or t["angle"] is None:
+        gap = 0.0 if v["angle"] is t["angle"] else math.inf
+    else:
+        gap = math.degrees(abs(float(v["angle"]) - float(t["angle"])))
+    return float(np.linalg.norm(p[:3, 3] - q[:3, 3])) / scale, turn, gap
+
+
+def compare_views(ours: list[dict[str, Any]], theirs: list[dict[str, Any]],
+                  size: float) -> dict[str, Any]:
+    """Each of our cameras and lights against Blender's of the same kind nearest it: the
+    largest distance between positions (a share of ``size``, or of the position's own distance
+    from the origin where that is larger), between view directions and between up directions
+    (degrees), and between angles (degrees). *same*: the same kinds, as many of each, each
+    within :data:`SAME`, :data:`VIEW_DEGREES` and :data:`VIEW_DEGREES`."""
+    out: dict[str, Any] = {"views": f"{len(ours)} / {len(theirs)}"}
+    if sorted(v["kind"] for v in ours) != sorted(v["kind"] for v in theirs):
+        return {**out, "views_verdict": "differs (kinds)"}
+    position = turn = angle = 0.0
+    left = list(theirs)
+    with np.errstate(all="ignore"):
+        for v in ours:
+            scale = max(size, float(np.linalg.norm(np.asarray(v["pose"])[:3, 3])), 1e-30)
+            k = min((k for k, t in enumerate(left) if t["kind"] == v["kind"]),
+                    key=lambda k, v=v, scale=scale: _apart(v, left[k], scale)[:2])
+            d, a, g = _apart(v, left.pop(k), scale)
+            # np.maximum keeps a NaN (a pose that is not finite), where max() would drop it.
+            position, turn, angle = (float(np.maximum(x, y)) for x, y in
+                                     ((position, d), (turn, a), (angle, g)))
+    same = position <= SAME and turn <= VIEW_DEGREES and angle <= VIEW_DEGREES
+    return {**out, "view_position": position, "view_degrees": turn, "view_angle": angle,
+            "views_verdict": "same" if same else "differs"}
 
 
 def blender_triangles(python: str, files: list[tuple[str, bytes | Path]], work: Path
-                      ) -> dict[str, np.ndarray | str]:
-    """Blender's triangles of each (name, bytes or path), or the importer's error."""
+                      ) -> dict[str, tuple[np.ndarray, list[dict[str, Any]]] | str]:
+    """Blender's triangles, cameras and lights of each (name, bytes or path), or the
+    importer's error."""
     pairs = []
     for k, (name, source) in enumerate(files):
         folder = work / str(k)
@@ -455,10 +537,11 @@ def blender_triangles(python: str, files: list[tuple[str, bytes | Path]], work: 
         stop = done.index(False)
         Path(left[stop][1] + ".err").write_text(f"Blender exited with code {code}")
         left = left[stop + 1:]
-    out: dict[str, np.ndarray | str] = {}
+    out: dict[str, tuple[np.ndarray, list[dict[str, Any]]] | str] = {}
     for (name, _), (_, target) in zip(files, pairs, strict=True):
         err = Path(target + ".err")
-        out[name] = err.read_text() if err.exists() else np.load(target)
+        out[name] = err.read_text() if err.exists() else (
+            np.load(target), json.loads(Path(target + ".views.json").read_text()))
     return out
 
 
@@ -483,15 +566,19 @@ def compare_files(blender_python: str, files: list[tuple[str, bytes | Path]], ki
     for name, source in files:
         row: dict[str, Any] = {"set": kind, "file": name}
         try:
-            ours, said = world_triangles(source)
+            ours, said, views = world_triangles(source)
         except ShadowMapError as exc:
-            ours, said = None, []
+            ours, said, views = None, [], []
             row["our_error"] = f"{type(exc).__name__}: {exc}"
         blender = theirs[name]
         if isinstance(blender, str):
             row["blender_error"] = blender
         if ours is not None and not isinstance(blender, str):
-            row.update(compare(ours, blender))
+            row.update(compare(ours, blender[0]))
+            finite = ours.reshape(-1, 3)
+            finite = finite[np.isfinite(finite).all(axis=1)]
+            size = float(np.linalg.norm(np.ptp(finite, axis=0))) if len(finite) else 1.0
+            row.update(compare_views(views, blender[1], size if math.isfinite(size) else 1.0))
         else:
             row["verdict"] = ("both refuse" if ours is None and isinstance(blender, str)
                               else "we refuse" if ours is None else "Blender refuses")
@@ -581,11 +668,13 @@ def report(rows: list[dict[str, Any]], version: str, count: int, seed: int,
                         f"{r['drawn_ours']} / {r['drawn_blender']}"
                         if r.get("drawn_ours") is not None else "—",
                         f"{r['distance']:.1e}" if "distance" in r else "—",
-                        r["verdict"], _short(said or "")])
+                        r["verdict"], r.get("views", "—"), r.get("views_verdict", "—"),
+                        _short(said or "")])
         return out
 
     headers = ["file", "our triangles", "Blender's", "drawn, ours / Blender's",
-               "largest distance", "verdict", "our warnings, or the refusal"]
+               "largest distance", "verdict", "cameras and lights, ours / Blender's",
+               "their poses and angles", "our warnings, or the refusal"]
     blocks = [C.markdown_table(headers, table("model")), C.markdown_table(headers, table("built"))]
     mutated = [r for r in rows if r["set"] == "mutation"]
     tally: dict[str, int] = {}
@@ -610,16 +699,42 @@ def report(rows: list[dict[str, Any]], version: str, count: int, seed: int,
                   ", ".join(map(str, r["flattening_matrices"])) or "—",
                   r.get("unflattened", "—")]
                  for r in warned + silent]
+    sections = []
     if diff_rows:
+        sections.append("Mutations accepted by both whose triangles differ")
         blocks.append(C.markdown_table(["mutation (model, draw, paths changed)", "drawn, ours",
                                         "Blender's", "largest distance", "our warnings",
                                         "nodes whose matrix flattens",
                                         f"those axes at {UNFLATTEN:g} of the largest"],
                                        diff_rows))
+    if count:
+        both = [r for r in mutated if "views_verdict" in r]
+        views_off = [r for r in both if r["views_verdict"] != "same"]
+        notes.append(f"- Cameras and lights of the {len(both)} mutations both accept: "
+                     f"{len(both) - len(views_off)} the same, {len(views_off)} not "
+                     f"({sum(bool(r['warnings']) for r in views_off)} of them with a warning "
+                     "of ours for the file).")
+        view_rows = [[r["file"], r["views"], r["views_verdict"],
+                      f"{r.get('view_position', math.nan):.1e}",
+                      f"{r.get('view_degrees', math.nan):.2g}",
+                      f"{r.get('view_angle', math.nan):.2g}",
+                      _short("; ".join(r["warnings"]) or "—")] for r in views_off]
+        if view_rows:
+            sections.append("Mutations accepted by both whose cameras or lights differ")
+            blocks.append(C.markdown_table(
+                ["mutation", "cameras and lights, ours / Blender's", "verdict",
+                 "position apart (share)", "directions apart (degrees)",
+                 "angles apart (degrees)", "our warnings"], view_rows))
     same = sum(r["verdict"] == "same" for r in rows if r["set"] != "mutation")
     compared = sum("distance" in r for r in rows if r["set"] != "mutation")
+    with_views = [r for r in rows if r["set"] != "mutation"
+                  and r.get("views", "0 / 0") != "0 / 0"]
+    views_same = sum(r["views_verdict"] == "same" for r in with_views)
     notes.insert(0, f"- Models and built files: {same} of {compared} compared are the same "
-                 f"(largest distance at most {SAME:g} of the diagonal).")
+                 f"(largest distance at most {SAME:g} of the diagonal); of the "
+                 f"{len(with_views)} with cameras or lights, {views_same} give the same ones "
+                 f"(positions within {SAME:g} of the scene's size, directions and angles "
+                 f"within {VIEW_DEGREES:g} degrees).")
     md = (
         "# Our glTF decoder against Blender's importer\n\n"
         "`bench/decoder_vs_blender.py`: each file loaded by this project's decoder and by "
@@ -630,8 +745,8 @@ def report(rows: list[dict[str, Any]], version: str, count: int, seed: int,
         f"the scenes' diagonal; *same*: at most {SAME:g}.\n\n"
         "## The models folder\n\n" + blocks[0] + "\n\n"
         "## Files built by the script (one glTF feature each)\n\n" + blocks[1] + "\n\n"
-        + ("## Mutations accepted by both that differ\n\n" + blocks[2] + "\n\n"
-           if len(blocks) > 2 else "")
+        + "".join(f"## {title}\n\n{block}\n\n" for title, block in zip(
+            sections, blocks[2:], strict=True))
         + "\n".join(notes) + "\n\n"
         f"Python {sys.version.split()[0]}; {C.code_state()}. Run time {elapsed:.0f} s.\n")
     csv_rows = [{k: (json.dumps(v) if isinstance(v, list) else v) for k, v in r.items()}

@@ -114,6 +114,7 @@ def test_the_other_decoder_dying_on_a_file_costs_that_file_only(check, tmp_path)
             if b'"generator": "die"' in data:
                 sys.exit(3)
             np.save(target, world_triangles(data)[0])
+            open(target + ".views.json", "w").write("[]")
     """))
     python = tmp_path / "python"
     python.write_text(f"#!/bin/sh\nexec {sys.executable} {fake} \"$@\"\n")
@@ -136,3 +137,26 @@ def test_an_interpreter_without_blender_is_refused_with_the_reason(check, tmp_pa
         check.blender_version(sys.executable)
     with pytest.raises(SystemExit, match="No such file"):
         check.blender_version(str(tmp_path / "missing"))
+
+
+def test_cameras_and_lights_are_matched_by_kind_and_compared(check):
+    scene = load_scene(check.cameras_and_lights())
+    ours = check.scene_views(scene)
+    assert sorted(v["kind"] for v in ours) == ["camera", "camera", "directional", "point",
+                                               "spot"]
+    spot = next(v for v in ours if v["kind"] == "spot")
+    assert spot["angle"] == pytest.approx(0.5)
+    theirs = list(reversed(ours))  # another order: matched by kind and place
+    got = check.compare_views(ours, theirs, 10.0)
+    assert got["views_verdict"] == "same" and got["view_position"] == 0.0
+    turned = [dict(v) for v in theirs]
+    pose = np.array(turned[0]["pose"], np.float64)
+    c, s = np.cos(np.radians(0.01)), np.sin(np.radians(0.01))
+    pose[:3, :3] = pose[:3, :3] @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    turned[0]["pose"] = pose
+    got = check.compare_views(ours, turned, 10.0)
+    assert got["views_verdict"] == "differs" and got["view_degrees"] == pytest.approx(0.01)
+    wider = [dict(v, angle=0.51) if v["kind"] == "spot" else v for v in theirs]
+    assert check.compare_views(ours, wider, 10.0)["view_angle"] == pytest.approx(
+        np.degrees(0.01))
+    assert check.compare_views(ours, theirs[1:], 10.0)["views_verdict"] == "differs (kinds)"
