@@ -1113,13 +1113,17 @@ def test_a_shearing_node_matrix_is_drawn_as_written_with_a_warning():
     g.node(mesh=mesh, matrix=(turn @ flat).T.ravel().tolist(), name="flat")
     g.node(scale=[1, 3, 1], children=[3])  # non-uniform parent, turned child: TRS each
     g.node(root=False, mesh=mesh, rotation=[0, 0, math.sin(0.4), math.cos(0.4)])
+    vast = np.eye(4)
+    vast[:3, 0] = [1e308, 1e308, 0]  # its squares overflow: the 45 degrees must still show
+    g.node(matrix=vast.T.ravel().tolist(), name="vast")
     scene = g.load()
     leaning = scene.instances[0]
     np.testing.assert_array_equal(leaning.matrix, shear)
     # The box around the sheared local box, which holds the sheared triangle.
     np.testing.assert_allclose(leaning.bounds, [[0, 0, 0], [3, 2, 0]])
-    (w,) = scene.warnings
+    w, far = scene.warnings
     assert "node 'leaning'" in w and "shears" in w and "26.6 degrees from perpendicular" in w, w
+    assert "node 'vast'" in far and "45 degrees from perpendicular" in far, far
     # Drawn as written: the world triangles are the sheared ones.
     np.testing.assert_allclose(scene.world_triangles(leaning)[0],
                                [[0, 0, 0], [2, 0, 0], [1, 2, 0]])
@@ -1264,6 +1268,61 @@ def test_cameras_and_lights_with_their_node_transforms():
     np.testing.assert_allclose(light.pose[:3, 3], [0, 0, 5])
     assert not any("orthographic" in w for w in scene.warnings)
     assert any("camera 9 does not exist" in w for w in scene.warnings)
+
+
+def test_a_mirrored_camera_looks_along_its_nodes_minus_z_unmirrored():
+    """A negative scale on a camera's node (valid glTF) used to give a mirrored pose: its
+    frustum's faces wound the other way and were culled, and the picture came out empty
+    without a word. The pose is a rotation looking along the node's -Z with its +Y up, and the
+    mirror is said; a light under a mirror keeps its direction and needs no word."""
+    g = one_triangle()
+    g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}]
+    g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "directional"}]}}
+    g.node(camera=0, translation=[0.3, 0.3, 4], scale=[-1, 1, 1], name="mirror")
+    g.node(translation=[0, 0, 2], scale=[1, -2, 1], rotation=[math.sin(0.3), 0, 0, math.cos(0.3)],
+           extensions={"KHR_lights_punctual": {"light": 0}})
+    scene = g.load()
+    (cam,) = scene.cameras
+    np.testing.assert_allclose(cam.pose, [[1, 0, 0, 0.3], [0, 1, 0, 0.3], [0, 0, 1, 4],
+                                          [0, 0, 0, 1]], atol=1e-12)
+    (light,) = scene.lights
+    assert np.linalg.det(light.pose[:3, :3]) == pytest.approx(1.0)
+    # It shines along its node's -Z: the turned z axis, whatever the y axis's sign.
+    np.testing.assert_allclose(light.pose[:3, 2], [0, -math.sin(0.6), math.cos(0.6)],
+                               atol=1e-12)
+    (w,) = scene.warnings
+    assert "node 'mirror': its camera's transform mirrors" in w, w
+
+
+@pytest.mark.gl
+def test_a_mirrored_camera_draws_the_scene(renderer):
+    def camera_under(scale):
+        g = one_triangle()
+        g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}]
+        g.node(camera=0, translation=[0.3, 0.3, 4], scale=scale)
+        return g.load()
+
+    plain = renderer.render(camera_under([1, 1, 1]), {"width": 64, "height": 48})
+    mirrored = renderer.render(camera_under([-1, 1, 1]), {"width": 64, "height": 48})
+    assert (plain.color != 255).any()
+    np.testing.assert_array_equal(mirrored.color, plain.color)  # the same view, unmirrored
+    assert any("mirrors" in w for w in mirrored.warnings)
+
+
+@pytest.mark.parametrize("camera, said", [
+    ({"type": "image/png", "perspective": {"yfov": 0.8}}, "type 'image/png' is neither"),
+    ({"type": "perspective"}, "has no 'perspective' object"),
+    ([0.8], "is not an object"),
+])
+def test_a_camera_that_cannot_be_read_is_left_out_with_a_warning(camera, said):
+    g = one_triangle()
+    g.doc["cameras"] = [camera]
+    g.node(camera=0)
+    scene = g.load()
+    assert scene.cameras == []
+    (w,) = scene.warnings
+    assert w.startswith("camera 0") and said in w and w.endswith("left out"), w
 
 
 def test_node_visibility_hides_subtrees_but_not_cameras():

@@ -109,13 +109,24 @@ def load_gltf(document: Document, resolver: Resolver,
     return _Loader(document, resolver, limits).load()
 
 
-def _orthonormal_pose(m: np.ndarray) -> np.ndarray:
-    """Drop scale (and shear) from a node matrix, keeping position and orientation."""
+def _orthonormal_pose(m: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Drop scale (and shear) from a node matrix, keeping position and orientation; (pose,
+    whether the matrix mirrors).
+
+    The nearest orthonormal matrix of a mirroring one (negative determinant, as a negative
+    scale gives) is itself a mirror: a camera posed by it would look through a mirrored
+    frustum, whose faces all wind the other way and are culled. Its x axis is turned around
+    instead, keeping the node's -Z (where a camera looks, or a light shines) and +Y.
+    """
     pose = np.eye(4)
     pose[:3, 3] = m[:3, 3]
     u, _, vt = np.linalg.svd(m[:3, :3])
-    pose[:3, :3] = u @ vt
-    return pose
+    rotation = u @ vt
+    mirrored = bool(np.linalg.det(rotation) < 0)
+    if mirrored:
+        rotation[:, 0] *= -1.0
+    pose[:3, :3] = rotation
+    return pose, mirrored
 
 
 def _flag(extras: Any, key: str) -> int:
@@ -680,7 +691,8 @@ class _Loader:
                                      "does not exist: left out")
             if g.camera[i] < 0 and not has_light:
                 continue
-            pose = _orthonormal_pose(g.world[i]) if np.all(np.isfinite(g.world[i])) else None
+            pose, mirrored = (_orthonormal_pose(g.world[i]) if np.all(np.isfinite(g.world[i]))
+                              else (None, False))
             if pose is None or not np.all(np.isfinite(pose)):
                 self.warnings.append(f"node {g.names[i]!r} has a non-finite transform: its "
                                      "camera or light is left out")
@@ -692,6 +704,11 @@ class _Loader:
             if g.camera[i] >= 0:
                 cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]),
                                    g.world[i])
+                if cam is not None and mirrored:
+                    # A light's cone is the same mirrored: only a camera's picture changes.
+                    self.warnings.append(f"node {g.names[i]!r}: its camera's transform mirrors "
+                                         "(a negative scale): drawn unmirrored, looking along "
+                                         "the node's -Z")
                 if cam is not None and not reach <= MAX_COORDINATE:
                     self.warnings.append(far + "camera is left out")
                 elif cam is not None:
@@ -710,10 +727,16 @@ class _Loader:
     def _camera(self, cam: Any, pose: np.ndarray, index: int,
                 world: np.ndarray) -> SceneCamera | None:
         if not isinstance(cam, dict):
+            self.warnings.append(f"camera {index} is not an object: left out")
             return None
         kind = cam.get("type")
-        p = cam.get(kind) if kind in ("perspective", "orthographic") else None
+        if kind not in ("perspective", "orthographic"):
+            self.warnings.append(f"camera {index}: type {brief(kind)} is neither 'perspective' "
+                                 "nor 'orthographic': left out")
+            return None
+        p = cam.get(kind)
         if not isinstance(p, dict):
+            self.warnings.append(f"camera {index} ({kind}) has no '{kind}' object: left out")
             return None
 
         def num(key: str) -> float | None:

@@ -120,7 +120,11 @@ def shear_degrees(linear: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (N,)
     """
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        # Each axis scaled by its largest component first: squares of components past 1e154
+        # would overflow, and the cosines come out NaN, hiding the shear.
+        big = np.abs(linear).max(axis=1, keepdims=True)
+        linear = linear / np.where(big > 0.0, big, 1.0)
         gram = np.einsum("nki,nkj->nij", linear, linear)
         d = np.sqrt(np.einsum("nii->ni", gram))
         cos = [gram[:, i, j] / (d[:, i] * d[:, j]) for i, j in ((0, 1), (0, 2), (1, 2))]
