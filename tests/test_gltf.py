@@ -1295,6 +1295,36 @@ def test_a_mirrored_camera_looks_along_its_nodes_minus_z_unmirrored():
     assert "node 'mirror': its camera's transform mirrors" in w, w
 
 
+def test_a_camera_or_light_under_a_zero_scale_faces_no_way_and_is_left_out():
+    """A zero scale (glTF allows it, often to hide a node) loses an axis: the way a camera, a
+    spot or a sun faces cannot be read, and any pose would be a guess. They are left out, and
+    said; a point light needs only its position and stays. A tiny scale that is not zero still
+    has its orientation."""
+    g = one_triangle()
+    g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}]
+    g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "spot"},
+                                                              {"type": "point"}]}}
+    flat = g.node(children=[3, 4, 5], scale=[1, 1, 0], name="flat")
+    g.node(scale=[1, 1, 1e-30], children=[6])
+    for k, extra in enumerate([{"camera": 0},
+                               {"extensions": {"KHR_lights_punctual": {"light": 0}}},
+                               {"extensions": {"KHR_lights_punctual": {"light": 1}}},
+                               {"camera": 0, "translation": [0, 0, 4e30]}]):
+        g.node(root=False, name=f"n{k}", **extra)
+    assert flat == 1
+    scene = g.load()
+    (cam,) = scene.cameras  # the one under the tiny scale
+    np.testing.assert_allclose(cam.pose[:3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(cam.pose[:3, 3], [0, 0, 4], atol=1e-12)
+    assert [lt.type for lt in scene.lights] == ["point"]
+    assert scene.warnings == [
+        "node 'n0' has a singular transform (a zero scale): the way its camera faces cannot be "
+        "read; left out",
+        "node 'n1' has a singular transform (a zero scale): the way its spot light faces "
+        "cannot be read; left out"]
+
+
 @pytest.mark.gl
 def test_a_mirrored_camera_draws_the_scene(renderer):
     def camera_under(scale):

@@ -109,9 +109,12 @@ def load_gltf(document: Document, resolver: Resolver,
     return _Loader(document, resolver, limits).load()
 
 
-def _orthonormal_pose(m: np.ndarray) -> tuple[np.ndarray, bool]:
+def _orthonormal_pose(m: np.ndarray) -> tuple[np.ndarray, bool, bool]:
     """Drop scale (and shear) from a node matrix, keeping position and orientation; (pose,
-    whether the matrix mirrors).
+    whether the matrix mirrors, whether it is singular).
+
+    A singular matrix (a zero scale, which glTF allows, often to hide a node) has lost an axis:
+    its orientation cannot be read from it, and the pose returned is one of many.
 
     The nearest orthonormal matrix of a mirroring one (negative determinant, as a negative
     scale gives) is itself a mirror: a camera posed by it would look through a mirrored
@@ -120,13 +123,18 @@ def _orthonormal_pose(m: np.ndarray) -> tuple[np.ndarray, bool]:
     """
     pose = np.eye(4)
     pose[:3, 3] = m[:3, 3]
-    u, _, vt = np.linalg.svd(m[:3, :3])
+    u, sv, vt = np.linalg.svd(m[:3, :3])
     rotation = u @ vt
     mirrored = bool(np.linalg.det(rotation) < 0)
     if mirrored:
         rotation[:, 0] *= -1.0
     pose[:3, :3] = rotation
-    return pose, mirrored
+    return pose, mirrored, not sv[-1] > 0.0
+
+
+def _faceless(node: str, what: str) -> str:
+    return (f"node {node!r} has a singular transform (a zero scale): the way its {what} faces "
+            "cannot be read; left out")
 
 
 def _flag(extras: Any, key: str) -> int:
@@ -691,8 +699,9 @@ class _Loader:
                                      "does not exist: left out")
             if g.camera[i] < 0 and not has_light:
                 continue
-            pose, mirrored = (_orthonormal_pose(g.world[i]) if np.all(np.isfinite(g.world[i]))
-                              else (None, False))
+            pose, mirrored, singular = (
+                _orthonormal_pose(g.world[i]) if np.all(np.isfinite(g.world[i]))
+                else (None, False, False))
             if pose is None or not np.all(np.isfinite(pose)):
                 self.warnings.append(f"node {g.names[i]!r} has a non-finite transform: its "
                                      "camera or light is left out")
@@ -701,9 +710,14 @@ class _Loader:
                 reach = float(np.max(np.abs(pose[:3, 3] - centre)))
             far = (f"node {g.names[i]!r} is {reach:.3g} units from the scene's centre, more "
                    "than float32 coordinates hold: its ")  # + what is left out
+            # A singular transform (a zero scale) has lost an axis: the way a camera, a spot
+            # or a sun faces cannot be read from it (a point light needs only its position).
             if g.camera[i] >= 0:
                 cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]),
                                    g.world[i])
+                if cam is not None and singular:
+                    self.warnings.append(_faceless(g.names[i], "camera"))
+                    cam = None
                 if cam is not None and mirrored:
                     # A light's cone is the same mirrored: only a camera's picture changes.
                     self.warnings.append(f"node {g.names[i]!r}: its camera's transform mirrors "
@@ -716,6 +730,9 @@ class _Loader:
             if has_light:
                 light = lights_punctual.node_light(node, lights, pose, self.warnings,
                                                    f"node {g.names[i]!r}")
+                if light is not None and singular and light.type != "point":
+                    self.warnings.append(_faceless(g.names[i], f"{light.type} light"))
+                    light = None
                 # A directional light has no position that matters.
                 if (light is not None and light.type != "directional"
                         and not reach <= MAX_COORDINATE):
