@@ -1295,34 +1295,36 @@ def test_a_mirrored_camera_looks_along_its_nodes_minus_z_unmirrored():
     assert "node 'mirror': its camera's transform mirrors" in w, w
 
 
-def test_a_camera_or_light_under_a_zero_scale_faces_no_way_and_is_left_out():
-    """A zero scale (glTF allows it, often to hide a node) loses an axis: the way a camera, a
-    spot or a sun faces cannot be read, and any pose would be a guess. They are left out, and
-    said; a point light needs only its position and stays. A tiny scale that is not zero still
-    has its orientation."""
+def test_zero_scales_keep_an_orientation_while_two_axes_are_left():
+    """A zero scale (glTF allows it, often to hide a node) loses an axis. With one lost, the
+    two left fix the way a camera or light faces, as a rotation (the lost axis's sign, free in
+    the decomposition, is the one that makes it proper). With two lost it cannot be read: a
+    camera, a spot or a sun is left out and said; a point light needs only its position."""
     g = one_triangle()
     g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}]
     g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
     g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "spot"},
                                                               {"type": "point"}]}}
-    flat = g.node(children=[3, 4, 5], scale=[1, 1, 0], name="flat")
-    g.node(scale=[1, 1, 1e-30], children=[6])
+    turn = [math.sin(0.2), 0, 0, math.cos(0.2)]  # 0.4 rad about x
+    g.node(children=[3, 4], scale=[1, 1, 0], rotation=turn)  # z lost
+    g.node(children=[5, 6], scale=[0, 1, 0], name="thin")  # x and z lost
     for k, extra in enumerate([{"camera": 0},
                                {"extensions": {"KHR_lights_punctual": {"light": 0}}},
-                               {"extensions": {"KHR_lights_punctual": {"light": 1}}},
-                               {"camera": 0, "translation": [0, 0, 4e30]}]):
-        g.node(root=False, name=f"n{k}", **extra)
-    assert flat == 1
+                               {"camera": 0},
+                               {"extensions": {"KHR_lights_punctual": {"light": 1}}}]):
+        g.node(root=False, name=f"n{k}", translation=[0, 0, 4], **extra)
     scene = g.load()
-    (cam,) = scene.cameras  # the one under the tiny scale
-    np.testing.assert_allclose(cam.pose[:3, :3], np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(cam.pose[:3, 3], [0, 0, 4], atol=1e-12)
-    assert [lt.type for lt in scene.lights] == ["point"]
+    c, s = math.cos(0.4), math.sin(0.4)
+    expected = [[1, 0, 0], [0, c, -s], [0, s, c]]
+    (cam,) = scene.cameras
+    np.testing.assert_allclose(cam.pose[:3, :3], expected, atol=1e-12)
+    np.testing.assert_allclose(cam.pose[:3, 3], [0, 0, 0], atol=1e-12)  # z scaled away
+    spot, point = scene.lights
+    assert (spot.type, point.type) == ("spot", "point")
+    np.testing.assert_allclose(spot.pose[:3, :3], expected, atol=1e-12)
     assert scene.warnings == [
-        "node 'n0' has a singular transform (a zero scale): the way its camera faces cannot be "
-        "read; left out",
-        "node 'n1' has a singular transform (a zero scale): the way its spot light faces "
-        "cannot be read; left out"]
+        "node 'n2' has a transform that keeps at most one axis (zero scales): the way its "
+        "camera faces cannot be read; left out"]
 
 
 @pytest.mark.gl

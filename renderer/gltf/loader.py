@@ -109,32 +109,43 @@ def load_gltf(document: Document, resolver: Resolver,
     return _Loader(document, resolver, limits).load()
 
 
+#: A node matrix's singular value below this share of its largest counts as a lost axis.
+LOST_AXIS = 1e-12
+
+
 def _orthonormal_pose(m: np.ndarray) -> tuple[np.ndarray, bool, bool]:
     """Drop scale (and shear) from a node matrix, keeping position and orientation; (pose,
-    whether the matrix mirrors, whether it is singular).
-
-    A singular matrix (a zero scale, which glTF allows, often to hide a node) has lost an axis:
-    its orientation cannot be read from it, and the pose returned is one of many.
+    whether the matrix mirrors, whether it has no orientation left).
 
     The nearest orthonormal matrix of a mirroring one (negative determinant, as a negative
     scale gives) is itself a mirror: a camera posed by it would look through a mirrored
     frustum, whose faces all wind the other way and are culled. Its x axis is turned around
     instead, keeping the node's -Z (where a camera looks, or a light shines) and +Y.
+
+    A zero scale (glTF allows it, often to hide a node) loses an axis. With one lost, the two
+    left fix the orientation: the lost one's sign, which the decomposition leaves free, is the
+    one that makes a rotation. With two or three lost there is no orientation to read.
     """
     pose = np.eye(4)
     pose[:3, 3] = m[:3, 3]
     u, sv, vt = np.linalg.svd(m[:3, :3])
+    faceless = not sv[1] > LOST_AXIS * sv[0]
     rotation = u @ vt
-    mirrored = bool(np.linalg.det(rotation) < 0)
-    if mirrored:
-        rotation[:, 0] *= -1.0
+    mirrored = False
+    if np.linalg.det(rotation) < 0:
+        if not sv[2] > LOST_AXIS * sv[0]:
+            u[:, 2] *= -1.0  # the lost axis
+            rotation = u @ vt
+        else:
+            mirrored = True
+            rotation[:, 0] *= -1.0
     pose[:3, :3] = rotation
-    return pose, mirrored, not sv[-1] > 0.0
+    return pose, mirrored, faceless
 
 
 def _faceless(node: str, what: str) -> str:
-    return (f"node {node!r} has a singular transform (a zero scale): the way its {what} faces "
-            "cannot be read; left out")
+    return (f"node {node!r} has a transform that keeps at most one axis (zero scales): the "
+            f"way its {what} faces cannot be read; left out")
 
 
 def _flag(extras: Any, key: str) -> int:
@@ -699,7 +710,7 @@ class _Loader:
                                      "does not exist: left out")
             if g.camera[i] < 0 and not has_light:
                 continue
-            pose, mirrored, singular = (
+            pose, mirrored, faceless = (
                 _orthonormal_pose(g.world[i]) if np.all(np.isfinite(g.world[i]))
                 else (None, False, False))
             if pose is None or not np.all(np.isfinite(pose)):
@@ -710,12 +721,12 @@ class _Loader:
                 reach = float(np.max(np.abs(pose[:3, 3] - centre)))
             far = (f"node {g.names[i]!r} is {reach:.3g} units from the scene's centre, more "
                    "than float32 coordinates hold: its ")  # + what is left out
-            # A singular transform (a zero scale) has lost an axis: the way a camera, a spot
-            # or a sun faces cannot be read from it (a point light needs only its position).
+            # A transform that has lost two axes (zero scales): the way a camera, a spot or a
+            # sun faces cannot be read from it (a point light needs only its position).
             if g.camera[i] >= 0:
                 cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]),
                                    g.world[i])
-                if cam is not None and singular:
+                if cam is not None and faceless:
                     self.warnings.append(_faceless(g.names[i], "camera"))
                     cam = None
                 if cam is not None and mirrored:
@@ -730,7 +741,7 @@ class _Loader:
             if has_light:
                 light = lights_punctual.node_light(node, lights, pose, self.warnings,
                                                    f"node {g.names[i]!r}")
-                if light is not None and singular and light.type != "point":
+                if light is not None and faceless and light.type != "point":
                     self.warnings.append(_faceless(g.names[i], f"{light.type} light"))
                     light = None
                 # A directional light has no position that matters.
