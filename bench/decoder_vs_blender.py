@@ -643,16 +643,17 @@ def run(blender_python: str, count: int, seed: int) -> None:
     try:
         for kind, files in sets.items():
             rows += compare_files(blender_python, files, kind, work / kind)
-        # A difference under a flattening matrix only: the same file with the flat axes given
-        # a small depth again, to tell the flattening from anything else in the file.
+        # A difference under a flattening matrix: the same file with the flat axes given a
+        # small depth again, to tell the flattening from anything else in the file.
         mutated = dict(mutations_of(sets["mutation"]))
-        flat = [r for r in rows if r["set"] == "mutation" and r["verdict"] == "differs"
-                and r["flattening_matrices"] and not r["warnings"]]
+        flat = [r for r in rows if r["set"] == "mutation" and r["flattening_matrices"]
+                and "differs" in (r["verdict"], r.get("views_verdict"))]
         again = compare_files(blender_python, [
             (r["file"], unflattened(mutated[r["file"]], r["flattening_matrices"]))
             for r in flat], "unflattened", work / "unflattened")
         for r, a in zip(flat, again, strict=True):
             r["unflattened"] = a["verdict"]
+            r["unflattened_views"] = a.get("views_verdict", "—")
     finally:
         shutil.rmtree(work, ignore_errors=True)
     report(rows, version, count, seed, time.perf_counter() - t0)
@@ -718,13 +719,21 @@ def report(rows: list[dict[str, Any]], version: str, count: int, seed: int,
                       f"{r.get('view_position', math.nan):.1e}",
                       f"{r.get('view_degrees', math.nan):.2g}",
                       f"{r.get('view_angle', math.nan):.2g}",
-                      _short("; ".join(r["warnings"]) or "—")] for r in views_off]
+                      _short("; ".join(r["warnings"]) or "—"),
+                      ", ".join(map(str, r["flattening_matrices"])) or "—",
+                      r.get("unflattened_views", "—")] for r in views_off]
+        flat_views = [r for r in views_off if r["flattening_matrices"]]
+        notes.append(f"- Of those {len(views_off)}, {len(flat_views)} lie under a node matrix "
+                     f"that flattens; with those axes scaled to {UNFLATTEN:g} of the largest "
+                     f"instead, {sum(r.get('unflattened_views') == 'same' for r in flat_views)}"
+                     " of them give the same cameras and lights.")
         if view_rows:
             sections.append("Mutations accepted by both whose cameras or lights differ")
             blocks.append(C.markdown_table(
                 ["mutation", "cameras and lights, ours / Blender's", "verdict",
                  "position apart (share)", "directions apart (degrees)",
-                 "angles apart (degrees)", "our warnings"], view_rows))
+                 "angles apart (degrees)", "our warnings", "nodes whose matrix flattens",
+                 f"those axes at {UNFLATTEN:g} of the largest"], view_rows))
     same = sum(r["verdict"] == "same" for r in rows if r["set"] != "mutation")
     compared = sum("distance" in r for r in rows if r["set"] != "mutation")
     with_views = [r for r in rows if r["set"] != "mutation"
