@@ -1295,6 +1295,29 @@ def test_a_mirrored_camera_looks_along_its_nodes_minus_z_unmirrored():
     assert "node 'mirror': its camera's transform mirrors" in w, w
 
 
+def test_cameras_and_lights_face_along_their_nodes_minus_z_under_a_shearing_parent():
+    """A turned child under a non-uniformly scaled parent (valid glTF): its world matrix
+    shears. glTF has the camera look and the light shine along the node's -Z axis as that
+    matrix carries it; the nearest rotation (polar decomposition) would point 27 degrees away
+    for this turn of 45 under a scale of 3."""
+    g = one_triangle()
+    g.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}]
+    g.doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    g.doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "spot"}]}}
+    turn = [math.sin(math.pi / 8), 0, 0, math.cos(math.pi / 8)]  # 45 degrees about x
+    g.node(children=[2, 3], scale=[1, 3, 1], translation=[0, 0, 5])
+    g.node(root=False, camera=0, rotation=turn)
+    g.node(root=False, rotation=turn, extensions={"KHR_lights_punctual": {"light": 0}})
+    scene = g.load()
+    axis = np.array([0, -3, 1]) / math.sqrt(10)  # diag(1, 3, 1) @ (0, -sin 45, cos 45)
+    for pose in (scene.cameras[0].pose, scene.lights[0].pose):
+        np.testing.assert_allclose(pose[:3, 2], axis, atol=1e-12)
+        np.testing.assert_allclose(pose[:3, 0], [1, 0, 0], atol=1e-12)
+        np.testing.assert_allclose(pose[:3, :3].T @ pose[:3, :3], np.eye(3), atol=1e-12)
+        assert np.linalg.det(pose[:3, :3]) == pytest.approx(1.0)
+    assert scene.warnings == []
+
+
 def test_zero_scales_keep_an_orientation_while_two_axes_are_left():
     """A zero scale (glTF allows it, often to hide a node) loses an axis. With one lost, the
     two left fix the way a camera or light faces, as a rotation (the lost axis's sign, free in

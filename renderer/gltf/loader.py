@@ -114,33 +114,44 @@ LOST_AXIS = 1e-12
 
 
 def _orthonormal_pose(m: np.ndarray) -> tuple[np.ndarray, bool, bool]:
-    """Drop scale (and shear) from a node matrix, keeping position and orientation; (pose,
-    whether the matrix mirrors, whether it has no orientation left).
+    """A camera's or light's pose from its node's world matrix: position, and a rotation whose
+    -Z is the way the node's -Z axis points and whose +Y is the node's +Y made perpendicular
+    to it; (pose, whether the matrix mirrors, whether it has no orientation left).
 
-    The nearest orthonormal matrix of a mirroring one (negative determinant, as a negative
-    scale gives) is itself a mirror: a camera posed by it would look through a mirrored
-    frustum, whose faces all wind the other way and are culled. Its x axis is turned around
-    instead, keeping the node's -Z (where a camera looks, or a light shines) and +Y.
+    glTF has a camera look, and a light shine, along its node's -Z axis as the world matrix
+    carries it. Under a non-uniform scale and a turn (a scaled parent, a turned child) that
+    matrix shears, and its nearest rotation (the polar decomposition) points elsewhere: 27
+    degrees off for a turn of 45 under a scale of 3. A mirroring matrix (a negative scale)
+    keeps its -Z and +Y here, so its picture is drawn unmirrored; posed by the mirror itself, a
+    camera's frustum would wind every face the other way and cull it.
 
-    A zero scale (glTF allows it, often to hide a node) loses an axis. With one lost, the two
-    left fix the orientation: the lost one's sign, which the decomposition leaves free, is the
-    one that makes a rotation. With two or three lost there is no orientation to read.
+    A zero scale (glTF allows it, often to hide a node) loses an axis: a lost -Z is the cross
+    product of the other two, a lost +Y comes from the +X axis. With two or three lost there is
+    no orientation to read.
     """
     pose = np.eye(4)
     pose[:3, 3] = m[:3, 3]
-    u, sv, vt = np.linalg.svd(m[:3, :3])
-    faceless = not sv[1] > LOST_AXIS * sv[0]
-    rotation = u @ vt
-    mirrored = False
-    if np.linalg.det(rotation) < 0:
-        if not sv[2] > LOST_AXIS * sv[0]:
-            u[:, 2] *= -1.0  # the lost axis
-            rotation = u @ vt
-        else:
-            mirrored = True
-            rotation[:, 0] *= -1.0
-    pose[:3, :3] = rotation
-    return pose, mirrored, faceless
+    axes = np.array(m[:3, :3].T, np.float64)  # rows: the node's x, y and z axes in the world
+    length = np.linalg.norm(axes, axis=1)
+    kept = length > LOST_AXIS * length.max()
+    if kept.sum() < 2:
+        return pose, False, True
+    axes[kept] /= length[kept, None]
+    x, y, z = axes
+    mirrored = bool(kept.all() and np.linalg.det(m[:3, :3]) < 0)
+    if not kept[2]:
+        z = np.cross(x, y)
+        z /= np.linalg.norm(z)
+    right = np.cross(y, z) if kept[1] else x - (x @ z) * z  # +X: +Y x +Z
+    size = np.linalg.norm(right)
+    if not size > LOST_AXIS:  # +Y along -Z: the +X axis stands in for it
+        right = x - (x @ z) * z
+        size = np.linalg.norm(right)
+        if not size > LOST_AXIS:
+            return pose, mirrored, True
+    right /= size
+    pose[:3, 0], pose[:3, 1], pose[:3, 2] = right, np.cross(z, right), z
+    return pose, mirrored, False
 
 
 def _faceless(node: str, what: str) -> str:
