@@ -15,7 +15,8 @@ Three sets of files:
 - files built here, one per glTF feature the models do not exercise (sparse accessors, morph
   targets at mesh and node weights, quantized positions, strips and fans, mirroring nodes,
   GPU instancing, a deep hierarchy whose non-uniform scales and turns compose into a shear,
-  a default scene other than the first, cameras and lights on turned nodes),
+  a default scene other than the first, cameras and lights on turned nodes, two of them under
+  an unevenly scaled parent),
   and one that breaks a glTF rule to show a difference (a node matrix that shears);
 - ``--mutations N`` random mutations of the models (``tests/fuzz_mutations.py``, the files
   ``tests/test_fuzz.py`` renders, seed ``--seed``): where both decoders accept a file, each
@@ -288,8 +289,9 @@ def scenes() -> bytes:
 
 
 def cameras_and_lights() -> bytes:
-    """Cameras (perspective, under a turned and scaled parent; orthographic) and
-    KHR_lights_punctual lights (spot, point, directional) on turned nodes."""
+    """Cameras (perspective; orthographic) and KHR_lights_punctual lights (spot, point,
+    directional) on turned nodes, the perspective camera and the spot under a turned parent
+    scaled unevenly (their world matrices shear)."""
     b = Builder()
     b.doc["extensionsUsed"] = ["KHR_lights_punctual"]
     b.doc["cameras"] = [
@@ -301,9 +303,12 @@ def cameras_and_lights() -> bytes:
         {"type": "point"}, {"type": "directional"}]}}
     b.node(mesh=b.quad())
     camera = b.node(root=False, camera=0, translation=[0, 1, 5], rotation=_turn((1, 0, 0), -10))
-    b.node(children=[camera], rotation=_turn((0, 1, 0), 30), scale=[2, 2, 2])
+    spot = b.node(root=False, translation=[0, 2, 1], rotation=_turn((1, 0, 0), -45),
+                  extensions={"KHR_lights_punctual": {"light": 0}})
+    # Non-uniform: the children's world matrices shear, and they face along their -Z axes.
+    b.node(children=[camera, spot], rotation=_turn((0, 1, 0), 30), scale=[2, 3, 1])
     b.node(camera=1, translation=[3, 3, 3], rotation=_turn((1, -1, 0), -40))
-    for k, axis in enumerate([(1, 0, 0), (0, 1, 1), (1, 2, -1)]):
+    for k, axis in enumerate([(0, 1, 1), (1, 2, -1)], start=1):
         b.node(translation=[k - 1.0, 4.0, 1.0], rotation=_turn(axis, -60 + 20 * k),
                extensions={"KHR_lights_punctual": {"light": k}})
     return b.glb()
@@ -469,9 +474,16 @@ def scene_views(scene: Scene) -> list[dict[str, Any]]:
 def _apart(v: dict[str, Any], t: dict[str, Any], scale: float) -> tuple[float, float, float]:
     """Two views' distance (a share of ``scale``), the larger of the angles between their view
     and up directions, and between their angles (degrees); NaN where either is not finite."""
+    def view_and_up(pose: Any) -> tuple[np.ndarray, np.ndarray]:
+        # The up axis made perpendicular to the view axis: Blender keeps a sheared world
+        # matrix (its columns unit here, not perpendicular), this project a rotation.
+        m = np.asarray(pose, np.float64)
+        z, y = m[:3, 2], m[:3, 1] - (m[:3, 1] @ m[:3, 2]) * m[:3, 2]
+        return z, y / np.linalg.norm(y)
+
     p, q = np.asarray(v["pose"], np.float64), np.asarray(t["pose"], np.float64)
-    turn = max(math.degrees(math.acos(min(1.0, max(-1.0, float(p[:3, k] @ q[:3, k])))))
-               for k in (1, 2))
+    turn = max(math.degrees(math.acos(min(1.0, max(-1.0, float(a @ b)))))
+               for a, b in zip(view_and_up(p), view_and_up(q), strict=True))
     if v["angle"] is None or t["angle"] is None:
         gap = 0.0 if v["angle"] is t["angle"] else math.inf
     else:
@@ -484,8 +496,9 @@ def compare_views(ours: list[dict[str, Any]], theirs: list[dict[str, Any]],
     """Each of our cameras and lights against Blender's of the same kind nearest it: the
     largest distance between positions (a share of ``size``, or of the position's own distance
     from the origin where that is larger), between view directions and between up directions
-    (degrees), and between angles (degrees). *same*: the same kinds, as many of each, each
-    within :data:`SAME`, :data:`VIEW_DEGREES` and :data:`VIEW_DEGREES`."""
+    (each made perpendicular to its view direction; degrees), and between angles (degrees).
+    *same*: the same kinds, as many of each, each within :data:`SAME`, :data:`VIEW_DEGREES`
+    and :data:`VIEW_DEGREES`."""
     out: dict[str, Any] = {"views": f"{len(ours)} / {len(theirs)}"}
     if sorted(v["kind"] for v in ours) != sorted(v["kind"] for v in theirs):
         return {**out, "views_verdict": "differs (kinds)"}
