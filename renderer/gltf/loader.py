@@ -109,7 +109,7 @@ def load_gltf(document: Document, resolver: Resolver,
     return _Loader(document, resolver, limits).load()
 
 
-#: A node matrix's singular value below this share of its largest counts as a lost axis.
+#: A node matrix's axis shorter than this share of its longest counts as lost (a zero scale).
 LOST_AXIS = 1e-12
 
 
@@ -732,8 +732,6 @@ class _Loader:
                 reach = float(np.max(np.abs(pose[:3, 3] - centre)))
             far = (f"node {g.names[i]!r} is {reach:.3g} units from the scene's centre, more "
                    "than float32 coordinates hold: its ")  # + what is left out
-            # A transform that has lost two axes (zero scales): the way a camera, a spot or a
-            # sun faces cannot be read from it (a point light needs only its position).
             if g.camera[i] >= 0:
                 cam = self._camera(cams[int(g.camera[i])], pose, int(g.camera[i]),
                                    g.world[i])
@@ -752,6 +750,8 @@ class _Loader:
             if has_light:
                 light = lights_punctual.node_light(node, lights, pose, self.warnings,
                                                    f"node {g.names[i]!r}")
+                # A transform that keeps at most one axis (zero scales): the way a spot or a
+                # sun faces cannot be read from it; a point light needs only its position.
                 if light is not None and faceless and light.type != "point":
                     self.warnings.append(_faceless(g.names[i], f"{light.type} light"))
                     light = None
